@@ -1,0 +1,14 @@
+// Subcommands of `ridgewatch`. Each takes the arguments after the subcommand name, writes its result
+// on `out` and diagnostics on `err`, and returns an exit code (see cli/args.hpp). UsageError and
+// drivers::InputError may propagate; main() maps them to exit codes 2 and 3.
+#pragma once
+
+#include <iosfwd>
+#include <string>
+#include <vector>
+
+namespace ridgewatch::cli {
+
+int run_modes(const std::vector<std::string>& args, std::ostream& out, std::ostream& err);
+
+}  // namespace ridgewatch::cli

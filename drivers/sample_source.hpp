@@ -1,0 +1,43 @@
+// The one interface every sample producer implements: replayed files now, live ALSA capture and the
+// simulated rig later. The pipeline only ever sees this interface, so replay exercises the live path.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <optional>
+#include <span>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace ridgewatch::drivers {
+
+/// Bad input data (missing, unreadable, malformed or physically absurd file). The message names the
+/// source and what is wrong. Command-line tools map it to exit code 3.
+class InputError : public std::runtime_error {
+ public:
+  using std::runtime_error::runtime_error;
+};
+
+struct SourceInfo {
+  std::string name;                     ///< file path or device name, used in messages and events
+  double sample_rate_hz = 0.0;          ///< > 0
+  std::size_t channels = 1;             ///< channels in the underlying stream
+  std::size_t channel = 0;              ///< the channel this source delivers (0-based)
+  std::optional<std::uint64_t> frames;  ///< total frames when known (files), empty for live streams
+};
+
+class SampleSource {
+ public:
+  virtual ~SampleSource() = default;
+  virtual const SourceInfo& info() const = 0;
+  /// Reads up to out.size() samples of the selected channel into `out` (physical units of the file:
+  /// full scale = 1.0 for integer PCM). Returns the number written; 0 means end of stream.
+  /// Throws InputError when the data turn out to be bad (NaN/Inf samples, truncated file).
+  virtual std::size_t read(std::span<double> out) = 0;
+};
+
+/// Reads a source to its end.
+std::vector<double> read_all(SampleSource& source);
+
+}  // namespace ridgewatch::drivers
