@@ -1,0 +1,16 @@
+#!/usr/bin/env bash
+# Quick start, command 2: install dependencies, build, and run the whole test suite twice:
+# an optimised build, and an AddressSanitizer + UndefinedBehaviorSanitizer build.
+set -euo pipefail
+here=$(cd "$(dirname "$0")/.." && pwd)
+"$here/scripts/install-deps.sh"
+jobs=$(nproc)
+
+echo "== release build + tests"
+"$here/scripts/build.sh" "$here/build-test" -DCMAKE_BUILD_TYPE=RelWithDebInfo
+ctest --test-dir "$here/build-test" --output-on-failure -j "$jobs"
+
+echo "== ASan + UBSan build + tests"
+"$here/scripts/build.sh" "$here/build-asan" -DCMAKE_BUILD_TYPE=Debug -DRIDGEWATCH_SANITIZE=ON -DRIDGEWATCH_BUILD_BENCH=OFF
+ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
+  ctest --test-dir "$here/build-asan" --output-on-failure -j "$jobs"
