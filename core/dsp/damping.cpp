@@ -1,0 +1,292 @@
+#include "core/dsp/damping.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+#include <vector>
+
+namespace ridgewatch::dsp {
+
+namespace {
+
+constexpr double kTwoPi = 2.0 * std::numbers::pi;
+constexpr double kZ95 = 1.959963984540054;  // two-sided 95 % normal quantile
+
+double kernel_sd_s(const EnvelopeRow& row) { return row.eta0 / (kTwoPi * row.f_row_hz); }
+
+// Weighted straight-line fit y = a + b t with a sandwich covariance for errors whose correlation is
+// rho(dt) = exp(-dt^2 / (4 s^2)) and whose variances are 1 / w. Points are taken every `stride`
+// columns; the correlation makes denser sampling add almost nothing.
+struct LineFit {
+  double intercept = NAN, slope = NAN, slope_sd = NAN;
+  std::size_t points = 0;
+};
+
+template <typename ValueFn, typename WeightFn>
+LineFit weighted_line_fit(std::size_t begin, std::size_t end, std::size_t stride, double dt,
+                          double kernel_sd, ValueFn value, WeightFn weight) {
+  LineFit fit;
+  double s0 = 0, s1 = 0, s2 = 0, sy = 0, sty = 0;
+  const double t_ref = static_cast<double>(begin) * dt;  // centre times for conditioning
+  for (std::size_t c = begin; c < end; c += stride) {
+    const double t = static_cast<double>(c) * dt - t_ref;
+    const double w = weight(c);
+    const double y = value(c);
+    s0 += w;
+    s1 += w * t;
+    s2 += w * t * t;
+    sy += w * y;
+    sty += w * t * y;
+    ++fit.points;
+  }
+  const double det = s0 * s2 - s1 * s1;
+  if (fit.points < 3 || !(det > 0)) return fit;
+  fit.slope = (s0 * sty - s1 * sy) / det;
+  fit.intercept = (s2 * sy - s1 * sty) / det - fit.slope * t_ref;
+  // Meat of the sandwich: sum_ij x_i x_j^T sqrt(w_i w_j) rho_ij, over pairs within 6 correlation
+  // lengths (rho < 1e-15 beyond).
+  const double corr_len = 2.0 * kernel_sd;
+  const auto reach = static_cast<std::size_t>(std::ceil(6.0 * corr_len / (dt * static_cast<double>(stride))));
+  double m00 = 0, m01 = 0, m11 = 0;
+  for (std::size_t i = begin; i < end; i += stride) {
+    const double ti = static_cast<double>(i) * dt - t_ref;
+    const double wi = std::sqrt(weight(i));
+    for (std::size_t k = 0; k <= reach; ++k) {
+      const std::size_t j = i + k * stride;
+      if (j >= end) break;
+      const double tj = static_cast<double>(j) * dt - t_ref;
+      const double d = (tj - ti) / corr_len;
+      const double r = wi * std::sqrt(weight(j)) * std::exp(-d * d) * (k == 0 ? 1.0 : 2.0);
+      // symmetric pair (i, j) and (j, i): x_i x_j^T + x_j x_i^T
+      m00 += r;
+      m01 += r * 0.5 * (ti + tj);
+      m11 += r * ti * tj;
+    }
+  }
+  // Bread (X^T W X)^-1 = [s2 -s1; -s1 s0] / det; slope variance = row 2 of bread * meat * bread col 2.
+  const double b10 = -s1 / det, b11 = s0 / det;
+  const double var = b10 * b10 * m00 + 2.0 * b10 * b11 * m01 + b11 * b11 * m11;
+  fit.slope_sd = std::sqrt(std::max(var, 0.0));
+  return fit;
+}
+
+std::size_t fit_stride(const EnvelopeRow& row) {
+  // About 8 points per kernel width: the samples are correlated over ~2 s anyway.
+  const double per = kernel_sd_s(row) / (8.0 * row.time_step_s);
+  return std::max<std::size_t>(1, static_cast<std::size_t>(per));
+}
+
+double debiased_power(double p, double noise) {
+  // E|W|^2 = |W_signal|^2 + noise: subtract the noise, floor at a quarter of the raw power.
+  return std::max(p - noise, 0.25 * p);
+}
+
+DampingEstimate base_estimate(DampingMethod method, const EnvelopeRow& row, const EnvelopeWindow& win) {
+  DampingEstimate e;
+  e.method = method;
+  e.window_start_s = static_cast<double>(win.start) * row.time_step_s;
+  e.window_end_s = static_cast<double>(win.end) * row.time_step_s;
+  if (win.peak < row.w.size() && win.noise_power > 0)
+    e.snr_db = 10.0 * std::log10(std::norm(row.w[win.peak]) / win.noise_power);
+  if (win.start < row.w.size()) e.amplitude = std::abs(row.w[win.start]);
+  e.status = win.status;
+  return e;
+}
+
+void set_zeta_interval(DampingEstimate& e) {
+  // Log-normal interval: zeta > 0 always, symmetric in ln zeta (first-order equal to zeta +- 1.96 sd).
+  const double rel = e.zeta_sd / e.zeta;
+  e.zeta_ci95_lo = e.zeta * std::exp(-kZ95 * rel);
+  e.zeta_ci95_hi = e.zeta * std::exp(kZ95 * rel);
+}
+
+}  // namespace
+
+std::string_view to_string(DampingMethod method) {
+  switch (method) {
+    case DampingMethod::two_point: return "two-point";
+    case DampingMethod::ridge_ls: return "ridge-ls";
+    case DampingMethod::ml: return "ml";
+  }
+  return "?";
+}
+
+bool parse_damping_method(std::string_view text, DampingMethod& method) {
+  for (DampingMethod m : {DampingMethod::two_point, DampingMethod::ridge_ls, DampingMethod::ml}) {
+    if (text == to_string(m)) {
+      method = m;
+      return true;
+    }
+  }
+  return false;
+}
+
+std::string_view to_string(EstimateStatus status) {
+  switch (status) {
+    case EstimateStatus::ok: return "ok";
+    case EstimateStatus::too_short: return "too_short";
+    case EstimateStatus::low_snr: return "low_snr";
+    case EstimateStatus::not_decaying: return "not_decaying";
+    case EstimateStatus::fit_failed: return "fit_failed";
+  }
+  return "?";
+}
+
+double estimate_row_noise_power(std::span<const std::complex<double>> w) {
+  if (w.empty()) return NAN;
+  std::vector<double> p(w.size());
+  for (std::size_t i = 0; i < w.size(); ++i) p[i] = std::norm(w[i]);
+  const std::size_t q = p.size() / 4;
+  std::nth_element(p.begin(), p.begin() + static_cast<std::ptrdiff_t>(q), p.end());
+  return p[q] / std::log(4.0 / 3.0);
+}
+
+EnvelopeWindow choose_window(const EnvelopeRow& row, const EnvelopeOptions& options) {
+  EnvelopeWindow win;
+  const std::size_t n = row.w.size();
+  const double dt = row.time_step_s;
+  const double s = kernel_sd_s(row);
+  const auto edge = static_cast<std::size_t>(std::ceil(options.edge_widths * s / dt));
+  const auto onset = static_cast<std::size_t>(std::max(0.0, std::round(options.onset_s / dt)));
+  win.noise_power = row.noise_power;
+  if (!(win.noise_power > 0)) {
+    // Noise from the part of the row away from the record edges.
+    const std::size_t lo = std::min(edge, n), hi = n > edge ? n - edge : 0;
+    win.noise_power = hi > lo + 8 ? estimate_row_noise_power(row.w.subspan(lo, hi - lo))
+                                  : estimate_row_noise_power(row.w);
+  }
+  if (n < 2 * edge + 3 || onset >= n - edge) {
+    win.status = EstimateStatus::too_short;
+    return win;
+  }
+  const std::size_t last = n - edge;  // exclusive
+  win.peak = onset;
+  for (std::size_t c = onset; c < last; ++c)
+    if (std::norm(row.w[c]) > std::norm(row.w[win.peak])) win.peak = c;
+  const auto after_peak = static_cast<std::size_t>(std::ceil(2.0 * s / dt));
+  win.start = std::max(onset + edge, win.peak + after_peak);
+  if (win.start >= last) {
+    win.status = EstimateStatus::too_short;
+    win.end = win.start;
+    return win;
+  }
+  const double threshold = options.end_snr * win.noise_power;
+  win.end = win.start;
+  while (win.end < last && std::norm(row.w[win.end]) >= threshold) ++win.end;
+  if (std::norm(row.w[win.peak]) < 4.0 * threshold) {
+    win.status = EstimateStatus::low_snr;
+  } else if (static_cast<double>(win.end - win.start) * dt < options.min_window_widths * s) {
+    win.status = EstimateStatus::too_short;
+  }
+  return win;
+}
+
+double phase_slope_frequency(const EnvelopeRow& row, const EnvelopeWindow& win, double& sd_hz) {
+  sd_hz = NAN;
+  if (win.end <= win.start + 2) return NAN;
+  const std::size_t stride = 1;  // unwrapping needs every column (phase advance < pi per column)
+  // Unwrapped phase relative to the window start, accumulated column by column.
+  std::vector<double> phase(win.end - win.start);
+  double acc = 0.0;
+  phase[0] = 0.0;
+  for (std::size_t c = win.start + 1; c < win.end; ++c) {
+    acc += std::arg(row.w[c] * std::conj(row.w[c - 1]));
+    phase[c - win.start] = acc;
+  }
+  const double noise = win.noise_power;
+  const LineFit fit = weighted_line_fit(
+      win.start, win.end, stride, row.time_step_s, kernel_sd_s(row),
+      [&](std::size_t c) { return phase[c - win.start]; },
+      [&](std::size_t c) { return 2.0 * debiased_power(std::norm(row.w[c]), noise) / noise; });
+  sd_hz = fit.slope_sd / kTwoPi;
+  return fit.slope / kTwoPi;
+}
+
+DampingEstimate estimate_ridge_ls(const EnvelopeRow& row, const EnvelopeWindow& win, double f_d_hz) {
+  DampingEstimate e = base_estimate(DampingMethod::ridge_ls, row, win);
+  e.f_hz = f_d_hz;
+  if (win.end <= win.start + 2) {
+    if (e.status == EstimateStatus::ok) e.status = EstimateStatus::too_short;
+    return e;
+  }
+  const double noise = win.noise_power;
+  const LineFit fit = weighted_line_fit(
+      win.start, win.end, fit_stride(row), row.time_step_s, kernel_sd_s(row),
+      [&](std::size_t c) { return 0.5 * std::log(debiased_power(std::norm(row.w[c]), noise)); },
+      [&](std::size_t c) { return 2.0 * debiased_power(std::norm(row.w[c]), noise) / noise; });
+  e.points = fit.points;
+  if (!std::isfinite(fit.slope)) {
+    e.status = EstimateStatus::too_short;
+    return e;
+  }
+  const double sigma = -fit.slope;
+  if (!(sigma > 0)) {
+    e.status = EstimateStatus::not_decaying;
+    return e;
+  }
+  const double omega_d = kTwoPi * f_d_hz;
+  e.zeta = zeta_from_decay(sigma, omega_d);
+  // d zeta / d sigma = omega_d^2 / (omega_d^2 + sigma^2)^(3/2)
+  const double dz = omega_d * omega_d / std::pow(omega_d * omega_d + sigma * sigma, 1.5);
+  e.zeta_sd = dz * fit.slope_sd;
+  set_zeta_interval(e);
+  e.amplitude = std::exp(fit.intercept + fit.slope * e.window_start_s);
+  return e;
+}
+
+DampingEstimate estimate_two_point(const EnvelopeRow& row, const EnvelopeWindow& win, double f_d_hz) {
+  DampingEstimate e = base_estimate(DampingMethod::two_point, row, win);
+  e.f_hz = f_d_hz;
+  if (win.end <= win.start + 2 || !(f_d_hz > 0)) {
+    if (e.status == EstimateStatus::ok) e.status = EstimateStatus::too_short;
+    return e;
+  }
+  const double noise = win.noise_power;
+  const double dt = row.time_step_s;
+  auto log_env = [&](double t) {  // ln envelope at time t, linear interpolation between columns
+    const double x = t / dt;
+    const auto c = static_cast<std::size_t>(std::floor(x));
+    const double u = x - static_cast<double>(c);
+    const double l0 = 0.5 * std::log(debiased_power(std::norm(row.w[c]), noise));
+    const double l1 = 0.5 * std::log(debiased_power(std::norm(row.w[c + 1]), noise));
+    return (1.0 - u) * l0 + u * l1;
+  };
+  const double t0 = static_cast<double>(win.start) * dt;
+  const double t_last = static_cast<double>(win.end - 1) * dt;
+  const double period = 1.0 / f_d_hz;
+  const double l0 = log_env(t0);
+  // First instant where the envelope has dropped by e^1.1, rounded to whole periods (Eq. 17).
+  double target_t = t_last;
+  for (std::size_t c = win.start; c + 1 < win.end; ++c) {
+    if (log_env(static_cast<double>(c) * dt) <= l0 - 1.1) {
+      target_t = static_cast<double>(c) * dt;
+      break;
+    }
+  }
+  auto m = static_cast<long>(std::lround((target_t - t0) / period));
+  while (m > 0 && t0 + static_cast<double>(m) * period > t_last) --m;
+  if (m < 1) {
+    e.status = EstimateStatus::too_short;
+    return e;
+  }
+  const double t1 = t0 + static_cast<double>(m) * period;
+  const double l1 = log_env(t1);
+  const double md = static_cast<double>(m);
+  const double delta = (l0 - l1) / md;  // Eq. (18)
+  e.points = 2;
+  e.window_end_s = t1;
+  if (!(delta > 0)) {
+    e.status = EstimateStatus::not_decaying;
+    return e;
+  }
+  const double four_pi2 = 4.0 * std::numbers::pi * std::numbers::pi;
+  e.zeta = delta / std::sqrt(four_pi2 + delta * delta);  // Eq. (19)
+  // var ln|W| = noise / (2 |W|^2) at each point; d zeta / d delta = 4 pi^2 / (4 pi^2 + delta^2)^1.5
+  const double var_delta = 0.5 * noise * (std::exp(-2.0 * l0) + std::exp(-2.0 * l1)) / (md * md);
+  e.zeta_sd = four_pi2 / std::pow(four_pi2 + delta * delta, 1.5) * std::sqrt(var_delta);
+  set_zeta_interval(e);
+  e.amplitude = std::exp(l0);
+  return e;
+}
+
+}  // namespace ridgewatch::dsp

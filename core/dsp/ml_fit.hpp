@@ -1,0 +1,62 @@
+// Maximum-likelihood refinement: nonlinear least squares of a sum of sampled damped sinusoids
+// (Eq. 16 for each mode, Eq. 15 for their sum) to the signal, started from envelope estimates.
+//
+// The signal segment x[n], n = 0..N-1 (n = 0 at the segment start t0) is modelled as
+//     x[n] = sum_j Re(C_j z_j^n) + noise,   z_j = exp((-sigma_j + i omega_j) / fs)
+// and compared in the DFT domain, where the model has the closed form
+//     X_k = sum_j [ C_j G(z_j, k) + conj(C_j) G(conj z_j, k) ] / 2,  G(z, k) = (1 - z^N) / (1 - z e^{-2 pi i k / N}).
+// The DFT is a unitary change of basis, so fitting all bins is the same least-squares problem as in
+// the time domain; keeping only the bins of a band [f_lo, f_hi] lets the fit ignore everything outside
+// it (hum, out-of-band modes), and white noise stays white and independent across bins. A low-order
+// complex polynomial in k ("residual terms", as in modal analysis) absorbs the smooth in-band tails of
+// modes outside the band. Free parameters per mode: f_j (damped frequency), ln zeta_j, Re C_j, Im C_j.
+// Optimiser: Eigen's Levenberg-Marquardt (MINPACK port) with an analytic Jacobian.
+#pragma once
+
+#include <cstddef>
+#include <memory>
+#include <span>
+#include <vector>
+
+#include "core/dsp/damping.hpp"
+
+namespace ridgewatch::dsp {
+
+struct ModeGuess {
+  double f_hz = 0.0;   ///< damped frequency, inside the band
+  double zeta = 0.01;  ///< damping ratio, 0 < zeta < 1
+};
+
+struct MlFitOptions {
+  double f_lo_hz = 0.0;         ///< band of DFT bins used; 0 < f_lo < f_hi <= fs/2
+  double f_hi_hz = 0.0;
+  int residual_terms = 2;       ///< complex polynomial terms for out-of-band tails (0..4)
+  int max_evaluations = 400;    ///< optimiser budget (function evaluations)
+};
+
+struct MlFitResult {
+  std::vector<DampingEstimate> modes;  ///< one per guess, same order; method = ml
+  double noise_sd = 0.0;               ///< estimated noise standard deviation of the input samples
+  bool converged = false;
+  std::size_t bins = 0;                ///< DFT bins used
+};
+
+/// Plans an FFT for segments of exactly `segment_samples` samples; reusable for many segments.
+class SpectralModeFitter {
+ public:
+  SpectralModeFitter(std::size_t segment_samples, double sample_rate_hz);
+  ~SpectralModeFitter();
+  SpectralModeFitter(const SpectralModeFitter&) = delete;
+  SpectralModeFitter& operator=(const SpectralModeFitter&) = delete;
+
+  /// Fits the modes to `segment` (size == segment_samples). Amplitudes are reported at the segment
+  /// start; window_start_s/end_s are 0 and the segment duration (callers shift them).
+  MlFitResult fit(std::span<const double> segment, std::span<const ModeGuess> guesses,
+                  const MlFitOptions& options);
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace ridgewatch::dsp
