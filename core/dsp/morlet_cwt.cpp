@@ -140,7 +140,7 @@ struct MorletCwt<Real>::Impl {
     a = s * 2.0 * std::numbers::pi * cfg.sample_rate_hz / L;
     const double k_center = cfg.eta0 / a;
     const double half = band_halfwidth_sd / a;
-    const double lo = std::max(1.0, std::ceil(k_center - half));
+    const double lo = std::max(0.0, std::ceil(k_center - half));
     const double hi = std::min(static_cast<double>(fft_len / 2), std::floor(k_center + half));
     k_lo = static_cast<std::size_t>(lo);
     k_hi = static_cast<std::size_t>(std::max(lo, hi));
@@ -175,6 +175,13 @@ struct MorletCwt<Real>::Impl {
       g *= r;
       r *= c;
       if (++slot == short_len) slot = 0;
+    }
+    // Bins on the jump of the analytic filter (DC, and Nyquist for even L) take half weight.
+    for (std::size_t k : {k_lo, k_hi}) {
+      if (k == 0 || (fft_len % 2 == 0 && k == fft_len / 2)) {
+        work[k % short_len][0] *= Real{0.5};
+        work[k % short_len][1] *= Real{0.5};
+      }
     }
     F::execute(backward);
     for (std::size_t m = 0; m < n_out; ++m) out[m] = {work[m][0], work[m][1]};
@@ -212,8 +219,13 @@ MorletCwt<Real>::MorletCwt(MorletCwtConfig config) : impl_(std::make_unique<Impl
   // Zero padding so that the circular convolution never wraps: the kernel at the lowest frequency
   // falls below the truncation level c * s seconds from its centre.
   const double s_max = MorletCwt::kernel_time_sd_s(im.cfg.eta0, f_min);
-  const auto pad = static_cast<std::size_t>(
+  auto pad = static_cast<std::size_t>(
       std::ceil(im.band_halfwidth_sd * s_max * im.cfg.sample_rate_hz)) + 2;
+  // When eta0 < band_halfwidth_sd the kept band reaches DC, where the analytic filter jumps by
+  // 2 exp(-eta0^2/2); its kernel then has a slowly decaying (1/tau) tail that no Gaussian-sized padding
+  // contains. Padding by a further max_samples keeps the wrapped part of that tail below ~3e-6 of
+  // max |W| even for a DC-dominated record (eta0 = 5; measured in test_morlet_cwt).
+  if (im.cfg.eta0 < im.band_halfwidth_sd) pad += im.cfg.max_samples;
   const std::size_t needed = im.cfg.max_samples + pad;
 
   if (im.cfg.band_limited) {
@@ -334,7 +346,8 @@ double MorletCwt<Real>::noise_gain(double f_hz) const {
   double sum = 0.0;
   for (std::size_t k = k_lo; k <= k_hi; ++k) {
     const double u = a * static_cast<double>(k) - im.cfg.eta0;
-    sum += 4.0 * std::exp(-u * u);
+    const double w = (k == 0 || (im.fft_len % 2 == 0 && k == im.fft_len / 2)) ? 0.25 : 1.0;
+    sum += w * 4.0 * std::exp(-u * u);
   }
   return sum / static_cast<double>(im.fft_len);
 }
