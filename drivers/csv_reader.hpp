@@ -2,7 +2,7 @@
 // spreadsheets. Parsed completely on open (the time column's median spacing needs every time stamp);
 // the replay driver then serves the values through the SampleSource interface.
 //
-// Accepted layout (documented for users in README, "Replay files"):
+// Accepted layout (this comment is the reference; the README should point users here):
 //   * Header lines: non-numeric lines at the top are skipped (column titles, units, instrument
 //     banners). Blank lines and lines starting with '#' are skipped anywhere.
 //   * Separator, chosen from the first data line: tab if present, else ';' if present, else ',' if
