@@ -128,6 +128,7 @@ std::string_view to_string(EstimateStatus status) {
     case EstimateStatus::low_snr: return "low_snr";
     case EstimateStatus::not_decaying: return "not_decaying";
     case EstimateStatus::fit_failed: return "fit_failed";
+    case EstimateStatus::inconsistent: return "inconsistent";
   }
   return "?";
 }
@@ -230,7 +231,13 @@ DampingEstimate estimate_ridge_ls(const EnvelopeRow& row, const EnvelopeWindow& 
   const double dz = omega_d * omega_d / std::pow(omega_d * omega_d + sigma * sigma, 1.5);
   e.zeta_sd = dz * fit.slope_sd;
   set_zeta_interval(e);
-  e.amplitude = std::exp(fit.intercept + fit.slope * e.window_start_s);
+  // Eq. (12) neglects the decay inside the kernel: for A exp(-sigma t) exp(i omega_d t) the row at
+  // scale s sees A exp(-sigma t) |Psi(omega_d + i sigma)| = A exp(-sigma t) exp(-((s omega_d - eta0)^2
+  // - s^2 sigma^2) / 2). Divide that gain out so the amplitude is the signal's own envelope.
+  const double s = kernel_sd_s(row);
+  const double detune = s * omega_d - row.eta0;
+  const double gain = std::exp(-0.5 * (detune * detune - s * s * sigma * sigma));
+  e.amplitude = std::exp(fit.intercept + fit.slope * e.window_start_s) / gain;
   return e;
 }
 

@@ -35,6 +35,8 @@ enum class EstimateStatus {
   low_snr,       ///< envelope never rises far enough above the noise floor
   not_decaying,  ///< envelope does not decay (sigma <= 0): not a free response
   fit_failed,    ///< the optimiser did not converge or the fit is degenerate
+  inconsistent,  ///< independent estimators disagree beyond their uncertainties: the damped-sinusoid
+                 ///< model does not describe this mode (close modes, non-viscous damping, ...)
 };
 std::string_view to_string(EstimateStatus status);
 

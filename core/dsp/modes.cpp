@@ -114,6 +114,20 @@ ModeSearchResult identify_modes(std::span<const double> signal, double fs, const
   if (peaks.size() > opt.max_modes) peaks.resize(opt.max_modes);
   std::sort(peaks.begin(), peaks.end(), [](const Peak& a, const Peak& b) { return a.f_hz < b.f_hz; });
 
+  // Noise power of a row: the lower quartile of its own |W|^2 (right for coloured noise when the
+  // mode has decayed into the noise for a quarter of the record), capped by the white-noise level
+  // implied by the profile floor (right when the mode outlasts the record, e.g. noise-free data or
+  // very light damping). floor_level = n sigma^2 for white noise.
+  const double white_var = floor_level / static_cast<double>(w.size());
+  const auto edge_cols = static_cast<std::size_t>(
+      std::ceil(opt.envelope.edge_widths * MorletCwt<double>::kernel_time_sd_s(opt.eta0, result.f_min_hz) / cwt.time_step_s()));
+  auto row_noise = [&](double f_hz) {
+    const std::size_t lo = std::min(edge_cols, w.size());
+    const std::size_t hi = w.size() > edge_cols ? w.size() - edge_cols : 0;
+    const double own = hi > lo + 8 ? estimate_row_noise_power(std::span<const std::complex<double>>(w).subspan(lo, hi - lo))
+                                   : estimate_row_noise_power(w);
+    return std::min(own, white_var * cwt.noise_gain(f_hz));
+  };
   EnvelopeOptions env = opt.envelope;
   env.onset_s = result.onset_s;
   std::vector<ModeGuess> guesses;
@@ -122,6 +136,7 @@ ModeSearchResult identify_modes(std::span<const double> signal, double fs, const
     IdentifiedMode mode;
     EnvelopeRow row{w, cwt.time_step_s(), pk.f_hz, opt.eta0, NAN};
     cwt.row(pk.f_hz, w);
+    row.noise_power = row_noise(pk.f_hz);
     EnvelopeWindow win = choose_window(row, env);
     double f_sd = NAN;
     double f_d = phase_slope_frequency(row, win, f_sd);
@@ -129,6 +144,7 @@ ModeSearchResult identify_modes(std::span<const double> signal, double fs, const
     // Envelope at the damped frequency itself (Eq. 12 at omega = omega_d).
     row.f_row_hz = f_d;
     cwt.row(f_d, w);
+    row.noise_power = row_noise(f_d);
     win = choose_window(row, env);
     mode.two_point = estimate_two_point(row, win, f_d);
     mode.ridge_ls = estimate_ridge_ls(row, win, f_d);
@@ -167,6 +183,20 @@ ModeSearchResult identify_modes(std::span<const double> signal, double fs, const
     }
   }
   for (IdentifiedMode& m : result.modes) {
+    // Cross-check: the envelope fit and the time-series fit see the same mode through different
+    // statistics. Where both claim to be fine but differ by more than 4 combined standard
+    // uncertainties (in ln zeta or in f), the damped-sinusoid model does not hold there.
+    DampingEstimate& a = m.ml;
+    DampingEstimate& b = m.ridge_ls;
+    if (a.status == EstimateStatus::ok && b.status == EstimateStatus::ok) {
+      // A 1 % (zeta) and 1e-4 (f) allowance covers the envelope method's own small deterministic
+    // biases (interference of neighbouring modes), which matter only when noise is negligible.
+    const double z_zeta_tol = std::abs(std::log(a.zeta / b.zeta)) /
+                              std::hypot(std::hypot(a.zeta_sd / a.zeta, b.zeta_sd / b.zeta), 0.01);
+    const double z_f_tol = std::abs(a.f_hz - b.f_hz) /
+                           std::hypot(std::hypot(a.f_sd_hz, b.f_sd_hz), 1e-4 * a.f_hz);
+    if (!(z_zeta_tol <= 4.0) || !(z_f_tol <= 4.0)) a.status = b.status = EstimateStatus::inconsistent;
+    }
     switch (opt.method) {
       case DampingMethod::two_point: m.selected = m.two_point; break;
       case DampingMethod::ridge_ls: m.selected = m.ridge_ls; break;

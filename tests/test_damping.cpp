@@ -1,0 +1,292 @@
+// Damping estimators and multi-mode identification against analytic damped sinusoids and the paper's
+// Table-1 signal.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <array>
+#include <random>
+#include <cmath>
+#include <numbers>
+#include <vector>
+
+#include "core/dsp/damping.hpp"
+#include "core/dsp/ml_fit.hpp"
+#include "core/dsp/modes.hpp"
+#include "core/dsp/morlet_cwt.hpp"
+#include "core/dsp/synthetic.hpp"
+
+using namespace ridgewatch::dsp;
+
+namespace {
+
+constexpr double kPi = std::numbers::pi;
+
+double median(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  const std::size_t n = v.size();
+  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+// The identified mode closest in frequency to f_hz (nullptr if none within 5 %).
+const IdentifiedMode* match(const ModeSearchResult& r, double f_hz) {
+  const IdentifiedMode* best = nullptr;
+  for (const auto& m : r.modes)
+    if (!best || std::abs(m.ridge_ls.f_hz - f_hz) < std::abs(best->ridge_ls.f_hz - f_hz)) best = &m;
+  if (best && std::abs(best->ridge_ls.f_hz / f_hz - 1.0) > 0.05) return nullptr;
+  return best;
+}
+
+}  // namespace
+
+TEST(DampingRelations, ZetaFromDecayMatchesEquation19) {
+  // Eq. (17) for the model (16): delta = sigma T_d = 2 pi sigma / omega_d; Eq. (19) gives zeta.
+  for (double zeta : {0.001, 0.02, 0.3, 0.9}) {
+    const double omega_d = 2 * kPi * 854.0;
+    const double sigma = decay_from_zeta(zeta, omega_d);
+    const double delta = 2 * kPi * sigma / omega_d;
+    const double eq19 = delta / std::sqrt(4 * kPi * kPi + delta * delta);
+    EXPECT_NEAR(zeta_from_decay(sigma, omega_d), zeta, 1e-14);
+    EXPECT_NEAR(eq19, zeta, 1e-14);
+  }
+}
+
+TEST(DampingMethodNames, RoundTrip) {
+  for (DampingMethod m : {DampingMethod::two_point, DampingMethod::ridge_ls, DampingMethod::ml}) {
+    DampingMethod parsed = DampingMethod::two_point;
+    ASSERT_TRUE(parse_damping_method(to_string(m), parsed));
+    EXPECT_EQ(parsed, m);
+  }
+  DampingMethod unused{};
+  EXPECT_FALSE(parse_damping_method("least-squares", unused));
+}
+
+// Single-mode grid, noise-free: zeta in {0.002, 0.01, 0.024, 0.05} x f in {200, 854, 3000} Hz.
+// The issue asks for recovery within 0.1 %; the maximum-likelihood model is exact for sampled
+// damped sinusoids, so it must be far better (limited by the optimiser tolerance); the envelope
+// methods are exact in the continuum limit but see the Gaussian edge factor and interpolation.
+TEST(SingleModeGrid, NoiseFreeRecoveryWithinTenthOfAPercent) {
+  const double fs = 25600.0;
+  for (double f : {200.0, 854.0, 3000.0}) {
+    for (double zeta : {0.002, 0.01, 0.024, 0.05}) {
+      // Long enough for the envelope to fall well below its start even at zeta = 0.002, f = 200 Hz.
+      const double decay_s = 1.0 / decay_from_zeta(zeta, 2 * kPi * f);
+      const auto n = static_cast<std::size_t>(std::min(4.0, std::max(0.25, 3.0 * decay_s)) * fs);
+      const auto x = damped_sum({{1.0, f, zeta, 0.3}}, fs, n);
+      ModeSearchOptions opt;
+      opt.onset_s = 0.0;
+      const ModeSearchResult r = identify_modes(x, fs, opt);
+      const IdentifiedMode* m = match(r, f);
+      ASSERT_NE(m, nullptr) << "f=" << f << " zeta=" << zeta;
+      SCOPED_TRACE("f=" + std::to_string(f) + " zeta=" + std::to_string(zeta));
+      EXPECT_EQ(m->ml.status, EstimateStatus::ok);
+      EXPECT_NEAR(m->ml.zeta / zeta, 1.0, 1e-3);
+      EXPECT_NEAR(m->ml.f_hz / f, 1.0, 1e-3);
+      EXPECT_NEAR(m->ridge_ls.zeta / zeta, 1.0, 1e-3);
+      EXPECT_NEAR(m->ridge_ls.f_hz / f, 1.0, 1e-3);
+    }
+  }
+}
+
+// Reads the frequency from the scale maximum of the paper-normalised transform (|W_paper| = |W| / K,
+// K proportional to sqrt(f), Eq. 12), and from the phase slope. The scale maximum is biased by about
+// -1/(2 eta0^2) (maximise exp(-(eta0 (1 - f0/f))^2 / 2) / sqrt(f)); the phase slope is not.
+TEST(RidgeFrequency, PhaseSlopeRemovesTheScaleMaximumBias) {
+  const double fs = 10000.0, f0 = 500.0, eta0 = 7.0;
+  const auto x = damped_sum({{1.0, f0, 0.0, 0.0}}, fs, 8000);  // a steady tone
+  MorletCwtConfig cfg;
+  cfg.sample_rate_hz = fs;
+  cfg.eta0 = eta0;
+  cfg.frequencies_hz = make_frequency_grid(400, 600, 2001, GridSpacing::linear);  // 0.1 Hz steps
+  cfg.max_samples = x.size();
+  MorletCwt<double> cwt(cfg);
+  cwt.load(x);
+  std::vector<std::complex<double>> w(cwt.columns());
+  const std::size_t mid = w.size() / 2;
+  double best_f = 0, best = -1;
+  for (double f : cfg.frequencies_hz) {
+    cwt.row(f, w);
+    const double paper_modulus = std::abs(w[mid]) / std::sqrt(f);
+    if (paper_modulus > best) best = paper_modulus, best_f = f;
+  }
+  const double bias = best_f / f0 - 1.0;
+  EXPECT_NEAR(bias, -1.0 / (2 * eta0 * eta0), 1.5e-3);  // -1.02 %, to within the 0.1 Hz grid + O(eta0^-4)
+  EXPECT_LT(bias, -0.008);
+
+  // Phase slope from a row deliberately 3 % off the tone.
+  cwt.row(f0 * 1.03, w);
+  EnvelopeRow row{w, cwt.time_step_s(), f0 * 1.03, eta0, NAN};
+  const EnvelopeWindow win{1000, 7000, 4000, 1e-12, EstimateStatus::ok};
+  double sd = NAN;
+  const double f_phase = phase_slope_frequency(row, win, sd);
+  EXPECT_NEAR(f_phase / f0 - 1.0, 0.0, 1e-9);  // exact in double precision for a pure tone
+}
+
+// Envelope normalisation (Eq. 12): the ridge-LS amplitude at the window start equals the true
+// envelope A exp(-sigma t) there.
+TEST(RidgeLs, AmplitudeEqualsSignalEnvelope) {
+  const double fs = 10000.0, f = 700.0, zeta = 0.01, a = 2.5;
+  const auto x = damped_sum({{a, f, zeta, 1.0}}, fs, 10000);
+  MorletCwtConfig cfg;
+  cfg.sample_rate_hz = fs;
+  cfg.frequencies_hz = {f};
+  cfg.max_samples = x.size();
+  MorletCwt<double> cwt(cfg);
+  cwt.load(x);
+  std::vector<std::complex<double>> w(cwt.columns());
+  cwt.row(f, w);
+  EnvelopeRow row{w, cwt.time_step_s(), f, cfg.eta0, NAN};
+  EnvelopeOptions eo;
+  eo.noise_sd = NAN;
+  row.noise_power = 1e-20;  // noise-free
+  const EnvelopeWindow win = choose_window(row, eo);
+  const DampingEstimate e = estimate_ridge_ls(row, win, f);
+  ASSERT_EQ(e.status, EstimateStatus::ok);
+  const double expected = a * std::exp(-decay_from_zeta(zeta, 2 * kPi * f) * e.window_start_s);
+  // The estimator divides out the in-kernel decay gain exp(s^2 sigma^2 / 2) (= 1.0024 here, which the
+  // paper's Eq. 12 neglects); what remains is the 3e-5 edge factor and round-off.
+  EXPECT_NEAR(e.amplitude / expected, 1.0, 1e-4);
+}
+
+// The window ends where the envelope meets the noise, so weaker signals give shorter windows, and a
+// signal below the noise is reported as low_snr instead of a number that looks fine.
+TEST(RidgeLs, WindowFollowsNoiseFloorAndFlagsLowSnr) {
+  const double fs = 10000.0, f = 500.0, zeta = 0.01;
+  const auto weak = damped_sum({{0.05, f, zeta, 0.0}}, fs, 10000);
+  const auto buried = damped_sum({{0.001, f, zeta, 0.0}}, fs, 10000);
+  // The same noise (sd 0.01) under three amplitudes.
+  auto run = [&](std::vector<double> x, std::uint64_t seed) {
+    std::mt19937_64 rng(seed);
+    std::normal_distribution<double> n01(0.0, 0.01);
+    for (double& v : x) v += n01(rng);
+    MorletCwtConfig cfg;
+    cfg.sample_rate_hz = fs;
+    cfg.frequencies_hz = {f};
+    cfg.max_samples = x.size();
+    MorletCwt<double> cwt(cfg);
+    cwt.load(x);
+    std::vector<std::complex<double>> w(cwt.columns());
+    cwt.row(f, w);
+    EnvelopeRow row{w, cwt.time_step_s(), f, cfg.eta0, NAN};
+    const EnvelopeWindow win = choose_window(row, EnvelopeOptions{});
+    return std::make_pair(win, estimate_ridge_ls(row, win, f));
+  };
+  const auto [w_strong, e_strong] = run(damped_sum({{1.0, f, zeta, 0.0}}, fs, 10000), 3);
+  const auto [w_weak, e_weak] = run(weak, 3);
+  const auto [w_buried, e_buried] = run(buried, 3);
+  EXPECT_EQ(e_strong.status, EstimateStatus::ok);
+  EXPECT_EQ(e_weak.status, EstimateStatus::ok);
+  EXPECT_GT(w_strong.end - w_strong.start, w_weak.end - w_weak.start);
+  EXPECT_EQ(e_buried.status, EstimateStatus::low_snr);
+  // Statistical tolerances: the ridge-LS interval at these SNRs is ~0.5 % (strong) and ~5 % (weak).
+  EXPECT_NEAR(e_strong.zeta / zeta, 1.0, 0.02);
+  EXPECT_NEAR(e_weak.zeta / zeta, 1.0, 0.1);
+}
+
+// The paper's numerical example (Table 1), 10 kHz, 1 s, SNR 20 dB, 20 seeds: the acceptance numbers
+// of the issue. Median |zeta error| of the default (ml) method <= 0.30 / 0.45 / 0.60 %; median
+// |f error| <= 0.02 %; the 95 % interval covers the truth in 85-99 % of the cases. The last check
+// pools the three modes and 40 seeds (120 intervals) so that the 99 % upper limit is testable.
+TEST(PaperTable1, ReproducesAccuracyTargets) {
+  const double fs = 10000.0;
+  const auto truth = paper_table1_components();
+  const std::array<double, 3> zeta_limit_pct = {0.30, 0.45, 0.60};
+  std::array<std::vector<double>, 3> zerr, ferr, zerr_rls, zerr_2p;
+  int covered = 0, total = 0;
+  ModeSearchOptions opt;
+  opt.onset_s = 0.0;
+  for (int seed = 1; seed <= 40; ++seed) {
+    auto x = damped_sum(truth, fs, 10000);
+    add_white_noise(x, 20.0, static_cast<std::uint64_t>(seed));
+    const ModeSearchResult r = identify_modes(x, fs, opt);
+    ASSERT_EQ(r.modes.size(), 3u) << "seed " << seed;
+    for (std::size_t i = 0; i < 3; ++i) {
+      const IdentifiedMode* m = match(r, truth[i].f_hz);
+      ASSERT_NE(m, nullptr);
+      ASSERT_EQ(m->selected.method, DampingMethod::ml);
+      ASSERT_EQ(m->selected.status, EstimateStatus::ok) << "seed " << seed << " mode " << i;
+      if (seed <= 20) {
+        zerr[i].push_back(std::abs(m->ml.zeta / truth[i].zeta - 1) * 100);
+        ferr[i].push_back(std::abs(m->ml.f_hz / truth[i].f_hz - 1) * 100);
+        zerr_rls[i].push_back(std::abs(m->ridge_ls.zeta / truth[i].zeta - 1) * 100);
+        zerr_2p[i].push_back(std::abs(m->two_point.zeta / truth[i].zeta - 1) * 100);
+      }
+      ++total;
+      if (m->ml.zeta_ci95_lo <= truth[i].zeta && truth[i].zeta <= m->ml.zeta_ci95_hi) ++covered;
+    }
+  }
+  for (std::size_t i = 0; i < 3; ++i) {
+    EXPECT_LE(median(zerr[i]), zeta_limit_pct[i]) << "mode " << i;
+    EXPECT_LE(median(ferr[i]), 0.02) << "mode " << i;
+    // The better estimators must beat the paper's two-point decrement on its own example.
+    EXPECT_LT(median(zerr[i]), median(zerr_2p[i])) << "mode " << i;
+  }
+  // Ridge least squares: the issue's reference numbers are ~0.3 / 1.0 / 0.5 %.
+  EXPECT_LE(median(zerr_rls[0]), 0.5);
+  EXPECT_LE(median(zerr_rls[1]), 1.2);
+  EXPECT_LE(median(zerr_rls[2]), 0.7);
+  const double coverage = static_cast<double>(covered) / total;
+  EXPECT_GE(coverage, 0.85);
+  EXPECT_LE(coverage, 0.99);
+}
+
+TEST(PaperTable1, NoiseFreeErrorsBelowFiveHundredthsOfAPercent) {
+  const double fs = 10000.0;
+  const auto truth = paper_table1_components();
+  const auto x = damped_sum(truth, fs, 10000);
+  ModeSearchOptions opt;
+  const ModeSearchResult r = identify_modes(x, fs, opt);  // automatic onset
+  ASSERT_EQ(r.modes.size(), 3u);
+  for (const auto& c : truth) {
+    const IdentifiedMode* m = match(r, c.f_hz);
+    ASSERT_NE(m, nullptr);
+    EXPECT_NEAR(m->selected.zeta / c.zeta, 1.0, 5e-4) << c.f_hz;
+    EXPECT_NEAR(m->selected.f_hz / c.f_hz, 1.0, 5e-4) << c.f_hz;
+  }
+}
+
+// The spectral ML fit restricted to a band ignores a strong tone outside it.
+TEST(MlFit, BandRestrictionIgnoresOutOfBandHum) {
+  const double fs = 10000.0;
+  auto x = damped_sum({{1.0, 854.0, 0.024, 0.2}}, fs, 4000);
+  for (std::size_t n = 0; n < x.size(); ++n) x[n] += 3.0 * std::sin(2 * kPi * 50.0 * static_cast<double>(n) / fs);
+  SpectralModeFitter fitter(x.size(), fs);
+  MlFitOptions o;
+  o.f_lo_hz = 500;
+  o.f_hi_hz = 1300;
+  const ModeGuess g{850.0, 0.02};
+  const MlFitResult r = fitter.fit(x, std::span<const ModeGuess>(&g, 1), o);
+  ASSERT_EQ(r.modes.size(), 1u);
+  EXPECT_EQ(r.modes[0].status, EstimateStatus::ok);
+  // The hum's leakage into 500-1300 Hz is smooth and absorbed by the residual terms; a few 1e-4
+  // remain because the 50 Hz tone is cut off at the record ends.
+  EXPECT_NEAR(r.modes[0].zeta / 0.024, 1.0, 2e-3);
+  EXPECT_NEAR(r.modes[0].f_hz / 854.0, 1.0, 1e-4);
+}
+
+TEST(MlFit, RejectsBadArguments) {
+  EXPECT_THROW(SpectralModeFitter(8, 1000.0), std::invalid_argument);
+  EXPECT_THROW(SpectralModeFitter(100, 0.0), std::invalid_argument);
+  SpectralModeFitter fitter(100, 1000.0);
+  std::vector<double> x(100, 0.0), wrong(99, 0.0);
+  MlFitOptions o;
+  o.f_lo_hz = 100;
+  o.f_hi_hz = 400;
+  const ModeGuess g{200.0, 0.01};
+  EXPECT_THROW(fitter.fit(wrong, std::span<const ModeGuess>(&g, 1), o), std::invalid_argument);
+  o.f_hi_hz = 600;  // above Nyquist
+  EXPECT_THROW(fitter.fit(x, std::span<const ModeGuess>(&g, 1), o), std::invalid_argument);
+}
+
+TEST(Modes, NoModesInPureNoiseAndErrorsOnShortInput) {
+  std::vector<double> noise(20000, 0.0);
+  std::mt19937_64 rng(11);
+  std::normal_distribution<double> n01(0.0, 1.0);
+  for (double& v : noise) v = n01(rng);
+  ModeSearchOptions opt;
+  const ModeSearchResult r = identify_modes(noise, 10000.0, opt);
+  for (const auto& m : r.modes) EXPECT_NE(m.selected.status, EstimateStatus::ok) << m.selected.f_hz;
+  std::vector<double> tiny(10, 0.0);
+  EXPECT_THROW(identify_modes(tiny, 10000.0, opt), std::invalid_argument);
+  opt.f_max_hz = 6000;
+  EXPECT_THROW(identify_modes(noise, 10000.0, opt), std::invalid_argument);
+}
