@@ -1,0 +1,169 @@
+// `ridgewatch modes` as a user runs it: exit codes, messages, JSON shape, nothing but JSON on stdout.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+
+#include "cli_runner.hpp"
+#include "core/dsp/synthetic.hpp"
+#include "drivers/wav_writer.hpp"
+
+using ridgewatch::test::run_cli;
+namespace fs = std::filesystem;
+
+namespace {
+
+const std::string kTable1 = std::string(RIDGEWATCH_SOURCE_DIR) + "/replay-data/paper-table1.wav";
+
+fs::path temp_file(const std::string& name) {
+  const auto dir = fs::temp_directory_path() / ("ridgewatch-modes-cli-" + std::to_string(::getpid()));
+  fs::create_directories(dir);
+  return dir / name;
+}
+
+}  // namespace
+
+TEST(ModesCli, BundledTable1SignalGivesThreeModesAsJson) {
+  const auto r = run_cli({"modes", kTable1});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const auto j = nlohmann::json::parse(r.out);  // throws (fails the test) on anything but JSON
+  EXPECT_EQ(j["sample_rate_hz"].get<double>(), 10000.0);
+  const auto& modes = j["modes"];
+  ASSERT_EQ(modes.size(), 3u);
+  const double f_true[] = {250.0, 500.0, 1250.0};
+  const double zeta_true[] = {0.02, 0.045, 0.005};
+  for (std::size_t i = 0; i < 3; ++i) {
+    const auto& m = modes[i];
+    EXPECT_EQ(m["method"], "ml");
+    EXPECT_EQ(m["status"], "ok");
+    // One noisy realisation (seed 1): the CRB-level errors are ~0.25-0.55 % (1 sigma), so 2 % is a
+    // > 3.5 sigma bound; the frequency to 0.1 %.
+    EXPECT_NEAR(m["f_hz"].get<double>() / f_true[i], 1.0, 1e-3);
+    EXPECT_NEAR(m["zeta"].get<double>() / zeta_true[i], 1.0, 0.02);
+    const auto ci = m["zeta_ci95"];
+    ASSERT_EQ(ci.size(), 2u);
+    EXPECT_LT(ci[0].get<double>(), m["zeta"].get<double>());
+    EXPECT_GT(ci[1].get<double>(), m["zeta"].get<double>());
+  }
+  // sorted by frequency
+  EXPECT_LT(modes[0]["f_hz"].get<double>(), modes[1]["f_hz"].get<double>());
+  EXPECT_LT(modes[1]["f_hz"].get<double>(), modes[2]["f_hz"].get<double>());
+}
+
+TEST(ModesCli, MethodSelectionAndAllMethods) {
+  for (const char* method : {"two-point", "ridge-ls", "ml"}) {
+    const auto r = run_cli({"modes", kTable1, "--method", method, "--max-modes", "2"});
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    const auto j = nlohmann::json::parse(r.out);
+    ASSERT_EQ(j["modes"].size(), 2u);  // the two strongest: 250 and 500 Hz
+    for (const auto& m : j["modes"]) EXPECT_EQ(m["method"], method);
+    EXPECT_NEAR(j["modes"][0]["f_hz"].get<double>(), 250.0, 1.0);
+  }
+  const auto r = run_cli({"modes", kTable1, "--all-methods", "--fmin", "400", "--fmax", "800"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  ASSERT_EQ(j["modes"].size(), 1u);
+  for (const char* k : {"two-point", "ridge-ls", "ml"}) EXPECT_TRUE(j["modes"][0]["estimates"].contains(k));
+}
+
+TEST(ModesCli, CsvInputWithRate) {
+  auto x = ridgewatch::dsp::damped_sum({{1.0, 854.0, 0.024, 0.0}}, 25600.0, 6400);
+  const auto path = temp_file("one-mode.csv");
+  {
+    std::ofstream f(path);
+    f << "# vibrometer export\nvelocity\n";
+    for (double v : x) f << v << "\n";
+  }
+  const auto r = run_cli({"modes", path.string(), "--rate", "25600"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  ASSERT_EQ(j["modes"].size(), 1u);
+  // Text export with 6 significant digits: quantisation ~1e-6 relative, far below 0.1 %.
+  EXPECT_NEAR(j["modes"][0]["zeta"].get<double>() / 0.024, 1.0, 1e-3);
+  const auto no_rate = run_cli({"modes", path.string()});
+  EXPECT_EQ(no_rate.exit_code, 3);
+  EXPECT_NE(no_rate.err.find("--rate"), std::string::npos) << no_rate.err;
+}
+
+TEST(ModesCli, UsageErrorsExitTwoAndNameTheFlag) {
+  struct Case {
+    std::vector<std::string> args;
+    std::string needle;
+  };
+  const std::vector<Case> cases = {
+      {{"modes"}, "FILE"},
+      {{"modes", kTable1, "--method", "fast"}, "--method"},
+      {{"modes", kTable1, "--max-modes", "0"}, "--max-modes"},
+      {{"modes", kTable1, "--max-modes", "three"}, "--max-modes"},
+      {{"modes", kTable1, "--fmin", "-5"}, "--fmin"},
+      {{"modes", kTable1, "--fmax", "6000"}, "--fmax"},
+      {{"modes", kTable1, "--fmin", "900", "--fmax", "800"}, "--fmin"},
+      {{"modes", kTable1, "--eta0", "2"}, "--eta0"},
+      {{"modes", kTable1, "--channel"}, "--channel"},
+      {{"modes", kTable1, "--bogus"}, "--bogus"},
+      {{"modes", kTable1, "--start", "5"}, "--start"},
+      {{"frobnicate"}, "frobnicate"},
+  };
+  for (const auto& c : cases) {
+    const auto r = run_cli(c.args);
+    EXPECT_EQ(r.exit_code, 2) << c.needle << ": " << r.err;
+    EXPECT_NE(r.err.find(c.needle), std::string::npos) << r.err;
+    EXPECT_TRUE(r.out.empty()) << r.out;
+  }
+}
+
+TEST(ModesCli, BadDataExitsThreeAndNamesTheFile) {
+  const auto missing = temp_file("nope.wav");
+  const auto garbage = temp_file("garbage.wav");
+  { std::ofstream(garbage) << "this is not audio at all, not even close"; }
+  const auto tiny = temp_file("tiny.wav");
+  ridgewatch::drivers::write_wav(tiny.string(), std::vector<double>(20, 0.1), 10000.0, 1);
+  const auto nan_file = temp_file("nan.wav");
+  std::vector<double> with_nan(1000, 0.0);
+  with_nan[500] = NAN;
+  ridgewatch::drivers::write_wav(nan_file.string(), with_nan, 10000.0, 1);
+  for (const auto& p : {missing, garbage, tiny, nan_file}) {
+    const auto r = run_cli({"modes", p.string()});
+    EXPECT_EQ(r.exit_code, 3) << p << ": " << r.err;
+    EXPECT_NE(r.err.find(p.string()), std::string::npos) << r.err;
+    EXPECT_TRUE(r.out.empty());
+  }
+  const auto r = run_cli({"modes", kTable1, "--channel", "1"});
+  EXPECT_EQ(r.exit_code, 3);
+  EXPECT_NE(r.err.find("channel"), std::string::npos) << r.err;
+}
+
+TEST(ModesCli, SilenceGivesNoModesNotACrash) {
+  const auto p = temp_file("silence.wav");
+  ridgewatch::drivers::write_wav(p.string(), std::vector<double>(10000, 0.0), 10000.0, 1);
+  const auto r = run_cli({"modes", p.string()});
+  EXPECT_EQ(r.exit_code, 0) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  EXPECT_TRUE(j["modes"].empty());
+}
+
+// Real recordings (two hammer hits on a plate). These are rich multi-mode responses; what must hold
+// is that the tool runs, reports finite frequencies inside the band, and never marks an estimate `ok`
+// when its two independent estimators disagree. Skips when ../shared is absent.
+TEST(ModesCli, RealPlateHitsAreHandledHonestly) {
+  for (const char* name : {"hit-2.wav", "hit-2-4.wav"}) {
+    const std::string path = std::string(RIDGEWATCH_SHARED_DIR) + "/real-data/plate-hits/" + name;
+    if (!fs::exists(path)) GTEST_SKIP() << "shared real-data not present";
+    const auto r = run_cli({"modes", path, "--all-methods", "--eta0", "20"});
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    const auto j = nlohmann::json::parse(r.out);
+    EXPECT_EQ(j["sample_rate_hz"].get<double>(), 44100.0);
+    for (const auto& m : j["modes"]) {
+      const double f = m["f_hz"].get<double>();
+      EXPECT_GT(f, j["band_hz"][0].get<double>());
+      EXPECT_LT(f, j["band_hz"][1].get<double>());
+      if (m["status"] == "ok") {
+        const auto& e = m["estimates"];
+        const double a = e["ml"]["zeta"].get<double>(), b = e["ridge-ls"]["zeta"].get<double>();
+        EXPECT_LT(std::abs(std::log(a / b)), 0.5) << name << " " << f;
+      }
+    }
+  }
+}
