@@ -10,5 +10,6 @@
 namespace ridgewatch::cli {
 
 int run_modes(const std::vector<std::string>& args, std::ostream& out, std::ostream& err);
+int run_simulate(const std::vector<std::string>& args, std::ostream& out, std::ostream& err);
 
 }  // namespace ridgewatch::cli

@@ -17,6 +17,9 @@ constexpr const char* kUsage =
     "  modes FILE [--channel N] [--rate HZ] [--fmin HZ] [--fmax HZ] [--max-modes K]\n"
     "             [--method two-point|ridge-ls|ml] [--eta0 X]\n"
     "      identify the modes (frequency, damping ratio, 95 % interval) of one free response\n"
+    "  simulate --rig RIG.yaml [--effect NAME[:key=value,...]]... [--duration S] [--rate HZ] [--noise REL]\n"
+    "           [--seed N] [--channels vib|vib,tacho] --out BASE   (or: simulate --list-effects)\n"
+    "      simulate the gear-pair model; writes BASE.wav and BASE.truth.json\n"
     "  --version  print the version\n"
     "exit codes: 0 ok, 2 bad usage or configuration, 3 bad input data\n";
 
@@ -27,6 +30,7 @@ struct Command {
 
 constexpr Command kCommands[] = {
     {"modes", ridgewatch::cli::run_modes},
+    {"simulate", ridgewatch::cli::run_simulate},
 };
 
 }  // namespace

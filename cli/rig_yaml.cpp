@@ -1,0 +1,235 @@
+#include "cli/rig_yaml.hpp"
+
+#include <yaml-cpp/yaml.h>
+
+#include <cmath>
+#include <fstream>
+#include <set>
+#include <sstream>
+#include <stdexcept>
+
+#include "cli/args.hpp"
+#include "core/model/effect_registry.hpp"
+
+namespace ridgewatch::cli {
+
+namespace {
+
+class Reader {
+ public:
+  explicit Reader(std::string name) : name_(std::move(name)) {}
+
+  [[noreturn]] void fail(const std::string& path, const std::string& message) const {
+    throw UsageError(name_ + ": " + (path.empty() ? "" : path + ": ") + message);
+  }
+
+  /// `node` must be a mapping whose keys are all in `allowed`.
+  void check_map(const YAML::Node& node, const std::string& path, const std::set<std::string>& allowed) const {
+    if (!node.IsMap()) fail(path.empty() ? "(top level)" : path, "must be a mapping");
+    for (const auto& kv : node) {
+      const std::string key = kv.first.as<std::string>();
+      if (!allowed.count(key)) {
+        std::string known;
+        for (const auto& k : allowed) known += (known.empty() ? "" : ", ") + k;
+        fail(join(path, key), "unknown key (known: " + known + ")");
+      }
+    }
+  }
+
+  static std::string join(const std::string& path, const std::string& key) {
+    return path.empty() ? key : path + "." + key;
+  }
+
+  double number(const YAML::Node& node, const std::string& path) const {
+    if (!node.IsScalar()) fail(path, "must be a number");
+    double x = 0.0;
+    try {
+      x = node.as<double>();
+    } catch (const YAML::Exception&) {
+      fail(path, "must be a number (got '" + node.Scalar() + "')");
+    }
+    if (!std::isfinite(x)) fail(path, "must be a finite number (got " + node.Scalar() + ")");
+    return x;
+  }
+
+  /// Required number with a rule: "positive", "non-negative" or "any".
+  double required(const YAML::Node& parent, const std::string& path, const std::string& key,
+                  const std::string& rule) const {
+    const YAML::Node n = parent[key];
+    if (!n) fail(join(path, key), "missing (required)");
+    return checked(n, join(path, key), rule);
+  }
+
+  double optional(const YAML::Node& parent, const std::string& path, const std::string& key,
+                  const std::string& rule, double fallback) const {
+    const YAML::Node n = parent[key];
+    if (!n) return fallback;
+    return checked(n, join(path, key), rule);
+  }
+
+  int required_count(const YAML::Node& parent, const std::string& path, const std::string& key) const {
+    const double x = required(parent, path, key, "positive");
+    if (x != std::floor(x) || x > 100000) fail(join(path, key), "must be a whole number of teeth (got " + format(x) + ")");
+    return static_cast<int>(x);
+  }
+
+  static std::string format(double x) {
+    std::ostringstream os;
+    os << x;
+    return os.str();
+  }
+
+ private:
+  double checked(const YAML::Node& n, const std::string& path, const std::string& rule) const {
+    const double x = number(n, path);
+    if (rule == "positive" && !(x > 0)) fail(path, "must be > 0 (got " + format(x) + ")");
+    if (rule == "non-negative" && x < 0) fail(path, "must be >= 0 (got " + format(x) + ")");
+    return x;
+  }
+
+  std::string name_;
+};
+
+model::EffectSpec read_effect(const Reader& r, const YAML::Node& node, const std::string& path) {
+  model::EffectSpec spec;
+  if (node.IsScalar()) {
+    try {
+      spec = model::parse_effect_spec(node.Scalar());
+    } catch (const std::invalid_argument& e) {
+      r.fail(path, e.what());
+    }
+  } else if (node.IsMap()) {
+    if (!node["name"]) r.fail(path + ".name", "missing (required)");
+    if (!node["name"].IsScalar()) r.fail(path + ".name", "must be a string");
+    spec.name = node["name"].Scalar();
+    for (const auto& kv : node) {
+      const std::string key = kv.first.as<std::string>();
+      if (key == "name") continue;
+      spec.values[key] = r.number(kv.second, path + "." + key);
+    }
+  } else {
+    r.fail(path, "must be an effect name, \"name:key=value,...\" or a mapping with 'name'");
+  }
+  try {
+    model::resolve_effect(spec);
+  } catch (const std::invalid_argument& e) {
+    r.fail(path, e.what());
+  }
+  return spec;
+}
+
+}  // namespace
+
+RigConfig parse_rig_yaml(const std::string& text, const std::string& name) {
+  const Reader r(name);
+  YAML::Node root;
+  try {
+    root = YAML::Load(text);
+  } catch (const YAML::Exception& e) {
+    r.fail("", std::string("not valid YAML: ") + e.what());
+  }
+  r.check_map(root, "", {"gear", "mesh", "operation", "excitation", "sensor", "model"});
+
+  RigConfig cfg;
+  model::RigParameters& rig = cfg.rig;
+
+  if (!root["gear"]) r.fail("gear", "missing (required)");
+  const YAML::Node gear = root["gear"];
+  r.check_map(gear, "gear", {"J1", "J2", "rb1", "rb2", "pinion_teeth", "wheel_teeth"});
+  rig.pinion_inertia_kg_m2 = r.required(gear, "gear", "J1", "positive");
+  rig.wheel_inertia_kg_m2 = r.required(gear, "gear", "J2", "positive");
+  rig.pinion_base_radius_m = r.required(gear, "gear", "rb1", "positive");
+  rig.wheel_base_radius_m = r.required(gear, "gear", "rb2", "positive");
+  rig.pinion_teeth = r.required_count(gear, "gear", "pinion_teeth");
+  rig.wheel_teeth = r.required_count(gear, "gear", "wheel_teeth");
+
+  if (!root["mesh"]) r.fail("mesh", "missing (required)");
+  const YAML::Node mesh = root["mesh"];
+  r.check_map(mesh, "mesh", {"c0", "harmonics", "damping_ratio", "d_z"});
+  rig.mean_mesh_stiffness_n_per_m = r.required(mesh, "mesh", "c0", "positive");
+  rig.stiffness_harmonics.clear();
+  if (const YAML::Node h = mesh["harmonics"]) {
+    if (!h.IsSequence()) r.fail("mesh.harmonics", "must be a list of {c: N/m, gamma: rad}");
+    double sum = 0.0;
+    for (std::size_t k = 0; k < h.size(); ++k) {
+      const std::string path = "mesh.harmonics[" + std::to_string(k) + "]";
+      r.check_map(h[k], path, {"c", "gamma"});
+      model::StiffnessHarmonic term;
+      term.amplitude_n_per_m = r.required(h[k], path, "c", "non-negative");
+      term.phase_rad = r.required(h[k], path, "gamma", "any");
+      sum += term.amplitude_n_per_m;
+      rig.stiffness_harmonics.push_back(term);
+    }
+    if (sum >= rig.mean_mesh_stiffness_n_per_m)
+      r.fail("mesh.harmonics", "sum of c must be < mesh.c0 so that c_z(t) stays > 0 (got " + Reader::format(sum) + ")");
+  }
+  const bool has_zeta = static_cast<bool>(mesh["damping_ratio"]), has_dz = static_cast<bool>(mesh["d_z"]);
+  if (has_zeta == has_dz) r.fail("mesh.damping_ratio", "give exactly one of mesh.damping_ratio and mesh.d_z");
+  if (has_zeta) {
+    rig.damping_ratio = r.required(mesh, "mesh", "damping_ratio", "non-negative");
+    if (rig.damping_ratio >= 1.0) r.fail("mesh.damping_ratio", "must be < 1 (got " + Reader::format(rig.damping_ratio) + ")");
+  } else {
+    const double dz = r.required(mesh, "mesh", "d_z", "non-negative");
+    rig.damping_ratio = dz / (2.0 * std::sqrt(rig.mean_mesh_stiffness_n_per_m * rig.reduced_mass_kg()));  // Eq. A2
+    if (rig.damping_ratio >= 1.0) r.fail("mesh.d_z", "gives a damping ratio >= 1 (got " + Reader::format(dz) + ")");
+  }
+
+  if (!root["operation"]) r.fail("operation", "missing (required)");
+  const YAML::Node op = root["operation"];
+  r.check_map(op, "operation", {"pinion_speed_rpm", "load_torque_n_m"});
+  rig.pinion_speed_rpm = r.required(op, "operation", "pinion_speed_rpm", "positive");
+  rig.load_torque_n_m = r.optional(op, "operation", "load_torque_n_m", "non-negative", rig.load_torque_n_m);
+
+  if (const YAML::Node ex = root["excitation"]) {
+    r.check_map(ex, "excitation", {"impact_force_n", "impact_duration_s", "impact_jitter_rel", "crack_angle_rad"});
+    rig.impact_force_n = r.optional(ex, "excitation", "impact_force_n", "non-negative", rig.impact_force_n);
+    rig.impact_duration_s = r.optional(ex, "excitation", "impact_duration_s", "positive", rig.impact_duration_s);
+    rig.impact_jitter_rel = r.optional(ex, "excitation", "impact_jitter_rel", "non-negative", rig.impact_jitter_rel);
+    rig.crack_angle_rad = r.optional(ex, "excitation", "crack_angle_rad", "any", rig.crack_angle_rad);
+    if (rig.impact_jitter_rel >= 1.0) r.fail("excitation.impact_jitter_rel", "must be < 1 (got " + Reader::format(rig.impact_jitter_rel) + ")");
+    if (rig.impact_duration_s >= 0.5 / rig.pinion_speed_hz())
+      r.fail("excitation.impact_duration_s", "must be < half a revolution (got " + Reader::format(rig.impact_duration_s) + ")");
+  }
+
+  if (const YAML::Node sensor = root["sensor"]) {
+    r.check_map(sensor, "sensor", {"quantity", "sensitivity"});
+    if (const YAML::Node q = sensor["quantity"]) {
+      const std::string v = q.IsScalar() ? q.Scalar() : "";
+      if (v == "velocity") rig.sensor_quantity = model::SensorQuantity::kVelocity;
+      else if (v == "displacement") rig.sensor_quantity = model::SensorQuantity::kDisplacement;
+      else if (v == "acceleration") rig.sensor_quantity = model::SensorQuantity::kAcceleration;
+      else r.fail("sensor.quantity", "must be velocity, displacement or acceleration (got '" + v + "')");
+    }
+    rig.sensor_sensitivity = r.optional(sensor, "sensor", "sensitivity", "positive", rig.sensor_sensitivity);
+  }
+
+  if (const YAML::Node m = root["model"]) {
+    r.check_map(m, "model", {"effects"});
+    if (const YAML::Node effects = m["effects"]) {
+      if (!effects.IsSequence()) r.fail("model.effects", "must be a list");
+      std::set<std::string> names;
+      for (std::size_t k = 0; k < effects.size(); ++k) {
+        const std::string path = "model.effects[" + std::to_string(k) + "]";
+        cfg.effects.push_back(read_effect(r, effects[k], path));
+        if (!names.insert(cfg.effects.back().name).second) r.fail(path, "effect " + cfg.effects.back().name + " given twice");
+      }
+    }
+  }
+
+  try {
+    rig.validate();  // anything the per-key checks above did not cover
+  } catch (const std::invalid_argument& e) {
+    r.fail("", e.what());
+  }
+  return cfg;
+}
+
+RigConfig load_rig_yaml(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw UsageError(path + ": cannot open rig file");
+  std::ostringstream text;
+  text << in.rdbuf();
+  return parse_rig_yaml(text.str(), path);
+}
+
+}  // namespace ridgewatch::cli
