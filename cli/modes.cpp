@@ -1,12 +1,12 @@
 // `ridgewatch modes FILE`: identify every mode of one free response and print JSON on stdout.
 #include <cmath>
+#include <nlohmann/json.hpp>
 #include <ostream>
 #include <sstream>
 #include <stdexcept>
 
 #include "cli/args.hpp"
 #include "cli/commands.hpp"
-#include "cli/json_writer.hpp"
 #include "core/dsp/modes.hpp"
 #include "drivers/replay_file.hpp"
 
@@ -16,17 +16,23 @@ namespace {
 
 using dsp::DampingEstimate;
 
-std::string estimate_json(const DampingEstimate& e) {
-  std::ostringstream o;
-  o << "{\"f_hz\":" << json_number(e.f_hz) << ",\"f_sd_hz\":" << json_number(e.f_sd_hz)
-    << ",\"zeta\":" << json_number(e.zeta) << ",\"zeta_sd\":" << json_number(e.zeta_sd)
-    << ",\"zeta_ci95\":[" << json_number(e.zeta_ci95_lo) << "," << json_number(e.zeta_ci95_hi) << "]"
-    << ",\"method\":" << json_string(dsp::to_string(e.method))
-    << ",\"status\":" << json_string(dsp::to_string(e.status)) << ",\"snr_db\":" << json_number(e.snr_db)
-    << ",\"amplitude\":" << json_number(e.amplitude) << ",\"window_s\":[" << json_number(e.window_start_s)
-    << "," << json_number(e.window_end_s) << "]}";
-  return o.str();
+// JSON number or null for NaN/Inf (nlohmann writes shortest round-trip decimals).
+nlohmann::ordered_json num(double v) { return std::isfinite(v) ? nlohmann::ordered_json(v) : nlohmann::ordered_json(nullptr); }
+
+nlohmann::ordered_json estimate_json(const DampingEstimate& e) {
+  return {{"f_hz", num(e.f_hz)},
+          {"f_sd_hz", num(e.f_sd_hz)},
+          {"zeta", num(e.zeta)},
+          {"zeta_sd", num(e.zeta_sd)},
+          {"zeta_ci95", {num(e.zeta_ci95_lo), num(e.zeta_ci95_hi)}},
+          {"method", std::string(dsp::to_string(e.method))},
+          {"status", std::string(dsp::to_string(e.status))},
+          {"snr_db", num(e.snr_db)},
+          {"amplitude", num(e.amplitude)},
+          {"window_s", {num(e.window_start_s), num(e.window_end_s)}}};
 }
+
+std::string fmt(double v) { return nlohmann::ordered_json(v).dump(); }
 
 }  // namespace
 
@@ -62,13 +68,13 @@ int run_modes(const std::vector<std::string>& argv, std::ostream& out, std::ostr
     throw drivers::InputError(path + ": too short for mode identification (" + std::to_string(x.size()) +
                               " samples, need at least 64)");
   if (fmax && *fmax >= 0.5 * fs)
-    throw UsageError("--fmax: " + json_number(*fmax) + " Hz must be below half the sample rate of " + path +
-                     " (" + json_number(0.5 * fs) + " Hz)");
+    throw UsageError("--fmax: " + fmt(*fmax) + " Hz must be below half the sample rate of " + path +
+                     " (" + fmt(0.5 * fs) + " Hz)");
   if (fmin && *fmin >= 0.5 * fs)
-    throw UsageError("--fmin: " + json_number(*fmin) + " Hz must be below half the sample rate of " + path +
-                     " (" + json_number(0.5 * fs) + " Hz)");
+    throw UsageError("--fmin: " + fmt(*fmin) + " Hz must be below half the sample rate of " + path +
+                     " (" + fmt(0.5 * fs) + " Hz)");
   if (opt.onset_s >= static_cast<double>(x.size()) / fs)
-    throw UsageError("--start: " + json_number(opt.onset_s) + " s is beyond the end of " + path);
+    throw UsageError("--start: " + fmt(opt.onset_s) + " s is beyond the end of " + path);
   opt.f_min_hz = fmin.value_or(0.0);
   opt.f_max_hz = fmax.value_or(0.0);
 
@@ -81,21 +87,23 @@ int run_modes(const std::vector<std::string>& argv, std::ostream& out, std::ostr
   }
   if (r.modes.empty()) err << "modes: no mode stands " << opt.min_peak_snr_db << " dB above the noise floor in " << path << "\n";
 
-  out << "{\"file\":" << json_string(path) << ",\"sample_rate_hz\":" << json_number(fs)
-      << ",\"samples\":" << x.size() << ",\"onset_s\":" << json_number(r.onset_s)
-      << ",\"band_hz\":[" << json_number(r.f_min_hz) << "," << json_number(r.f_max_hz) << "]"
-      << ",\"noise_sd\":" << json_number(r.noise_sd) << ",\"modes\":[";
-  for (std::size_t i = 0; i < r.modes.size(); ++i) {
-    const auto& m = r.modes[i];
-    std::string sel = estimate_json(m.selected);
-    if (args.has("--all-methods")) {
-      sel.pop_back();
-      sel += ",\"estimates\":{\"two-point\":" + estimate_json(m.two_point) +
-             ",\"ridge-ls\":" + estimate_json(m.ridge_ls) + ",\"ml\":" + estimate_json(m.ml) + "}}";
-    }
-    out << (i ? "," : "") << sel;
+  nlohmann::ordered_json doc = {{"file", path},
+                        {"sample_rate_hz", fs},
+                        {"samples", x.size()},
+                        {"onset_s", r.onset_s},
+                        {"band_hz", {r.f_min_hz, r.f_max_hz}},
+                        {"noise_sd", num(r.noise_sd)},
+                        {"modes", nlohmann::ordered_json::array()}};
+  for (const auto& m : r.modes) {
+    nlohmann::ordered_json j = estimate_json(m.selected);
+    if (args.has("--all-methods"))
+      j["estimates"] = {{"two-point", estimate_json(m.two_point)},
+                        {"ridge-ls", estimate_json(m.ridge_ls)},
+                        {"ml", estimate_json(m.ml)}};
+    doc["modes"].push_back(std::move(j));
   }
-  out << "]}\n";
+  // Invalid UTF-8 in a file name is replaced rather than aborting the output.
+  out << doc.dump(-1, ' ', false, nlohmann::ordered_json::error_handler_t::replace) << "\n";
   return kExitOk;
 }
 
