@@ -36,6 +36,21 @@ const IdentifiedMode* match(const ModeSearchResult& r, double f_hz) {
   return best;
 }
 
+// One CWT row of x at frequency f (default eta0), full rate.
+std::vector<std::complex<double>> single_row(const std::vector<double>& x, double fs, double f,
+                                             double& time_step_s) {
+  MorletCwtConfig cfg;
+  cfg.sample_rate_hz = fs;
+  cfg.frequencies_hz = {f};
+  cfg.max_samples = x.size();
+  MorletCwt<double> cwt(cfg);
+  cwt.load(x);
+  std::vector<std::complex<double>> w(cwt.columns());
+  cwt.row(f, w);
+  time_step_s = cwt.time_step_s();
+  return w;
+}
+
 }  // namespace
 
 TEST(DampingRelations, ZetaFromDecayMatchesEquation19) {
@@ -126,19 +141,10 @@ TEST(RidgeFrequency, PhaseSlopeRemovesTheScaleMaximumBias) {
 TEST(RidgeLs, AmplitudeEqualsSignalEnvelope) {
   const double fs = 10000.0, f = 700.0, zeta = 0.01, a = 2.5;
   const auto x = damped_sum({{a, f, zeta, 1.0}}, fs, 10000);
-  MorletCwtConfig cfg;
-  cfg.sample_rate_hz = fs;
-  cfg.frequencies_hz = {f};
-  cfg.max_samples = x.size();
-  MorletCwt<double> cwt(cfg);
-  cwt.load(x);
-  std::vector<std::complex<double>> w(cwt.columns());
-  cwt.row(f, w);
-  EnvelopeRow row{w, cwt.time_step_s(), f, cfg.eta0, NAN};
-  EnvelopeOptions eo;
-  eo.noise_sd = NAN;
-  row.noise_power = 1e-20;  // noise-free
-  const EnvelopeWindow win = choose_window(row, eo);
+  double dt = 0.0;
+  const auto w = single_row(x, fs, f, dt);
+  const EnvelopeRow row{w, dt, f, 7.0, 1e-20};  // noise-free: tiny noise power
+  const EnvelopeWindow win = choose_window(row, EnvelopeOptions{});
   const DampingEstimate e = estimate_ridge_ls(row, win, f);
   ASSERT_EQ(e.status, EstimateStatus::ok);
   const double expected = a * std::exp(-decay_from_zeta(zeta, 2 * kPi * f) * e.window_start_s);
@@ -158,15 +164,9 @@ TEST(RidgeLs, WindowFollowsNoiseFloorAndFlagsLowSnr) {
     std::mt19937_64 rng(seed);
     std::normal_distribution<double> n01(0.0, 0.01);
     for (double& v : x) v += n01(rng);
-    MorletCwtConfig cfg;
-    cfg.sample_rate_hz = fs;
-    cfg.frequencies_hz = {f};
-    cfg.max_samples = x.size();
-    MorletCwt<double> cwt(cfg);
-    cwt.load(x);
-    std::vector<std::complex<double>> w(cwt.columns());
-    cwt.row(f, w);
-    EnvelopeRow row{w, cwt.time_step_s(), f, cfg.eta0, NAN};
+    double dt = 0.0;
+    const auto w = single_row(x, fs, f, dt);
+    const EnvelopeRow row{w, dt, f, 7.0, NAN};  // noise power estimated from the row
     const EnvelopeWindow win = choose_window(row, EnvelopeOptions{});
     return std::make_pair(win, estimate_ridge_ls(row, win, f));
   };
