@@ -235,3 +235,31 @@ TEST(EffectSpec, ParsesCommandLineForm) {
   EXPECT_THROW(rm::parse_effect_spec("noise:std_rel=abc"), std::invalid_argument);
   EXPECT_THROW(rm::parse_effect_spec(":a=1"), std::invalid_argument);
 }
+
+TEST(Simulator, AccelerationAndDisplacementSensorsAreConsistentWithVelocity) {
+  rm::RigParameters rig;
+  rm::SimulationSettings s;
+  s.duration_s = 0.03;
+  const auto v = rm::simulate(rig, {}, s);
+  rig.sensor_quantity = rm::SensorQuantity::kAcceleration;
+  const auto a = rm::simulate(rig, {}, s);
+  rig.sensor_quantity = rm::SensorQuantity::kDisplacement;
+  const auto x = rm::simulate(rig, {}, s);
+  const double dt = 1.0 / v.sample_rate_hz;
+  double amax = 0.0, aerr = 0.0, vmax = 0.0, verr = 0.0;
+  for (std::size_t i = 1; i + 1 < v.output.size(); ++i) {
+    // Central differences at 60 samples per cycle: relative error (ω dt)²/6 = 1.8e-3 of the peak.
+    const double a_fd = (v.output[i + 1] - v.output[i - 1]) / (2 * dt);
+    const double v_fd = (x.output[i + 1] - x.output[i - 1]) / (2 * dt);
+    amax = std::max(amax, std::abs(a.output[i]));
+    vmax = std::max(vmax, std::abs(v.output[i]));
+    // Skip the impact pulse itself (the force has kinks there, so differences are poor).
+    const double t = static_cast<double>(i) * dt;
+    if (t > v.impacts[0].t_s - 2 * dt && t < v.impacts[0].t_s + 1.5e-4 + 2 * dt) continue;
+    aerr = std::max(aerr, std::abs(a.output[i] - a_fd));
+    verr = std::max(verr, std::abs(v.output[i] - v_fd));
+  }
+  EXPECT_LT(aerr, 3e-3 * amax);
+  EXPECT_LT(verr, 3e-3 * vmax);
+  EXPECT_GT(amax, 1000 * vmax);  // ω0 = 5404 s⁻¹ (velocity peak → acceleration peak)
+}
