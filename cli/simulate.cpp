@@ -15,7 +15,7 @@
 #include "cli/rig_yaml.hpp"
 #include "core/model/effect_registry.hpp"
 #include "core/model/simulator.hpp"
-#include <sndfile.h>
+#include "drivers/wav_writer.hpp"
 
 namespace ridgewatch::cli {
 
@@ -145,22 +145,6 @@ void write_truth(const std::string& path, const std::string& rig_file, const mod
   if (!f) throw std::runtime_error(path + ": cannot write");
 }
 
-/// Float32 WAV via libsndfile without the PEAK chunk: libsndfile stamps that chunk with the wall-clock
-/// time, which would break "same seed, same bytes" (drivers::write_wav keeps it).
-void write_float_wav(const std::string& path, const std::vector<double>& interleaved, double rate_hz, int channels) {
-  SF_INFO info{};
-  info.samplerate = static_cast<int>(rate_hz);
-  info.channels = channels;
-  info.format = SF_FORMAT_WAV | SF_FORMAT_FLOAT;
-  SNDFILE* f = sf_open(path.c_str(), SFM_WRITE, &info);
-  if (f == nullptr) throw std::runtime_error(path + ": cannot create (" + sf_strerror(nullptr) + ")");
-  sf_command(f, SFC_SET_ADD_PEAK_CHUNK, nullptr, SF_FALSE);
-  const auto frames = static_cast<sf_count_t>(interleaved.size() / static_cast<std::size_t>(channels));
-  const sf_count_t written = sf_writef_double(f, interleaved.data(), frames);
-  const int close_error = sf_close(f);
-  if (written != frames || close_error != 0) throw std::runtime_error(path + ": write failed");
-}
-
 }  // namespace
 
 int run_simulate(const std::vector<std::string>& argv, std::ostream& out, std::ostream& err) {
@@ -232,7 +216,7 @@ int run_simulate(const std::vector<std::string>& argv, std::ostream& out, std::o
     samples = result.output;
   }
   try {
-    write_float_wav(*base + ".wav", samples, settings.sample_rate_hz, tacho ? 2 : 1);
+    drivers::write_wav(*base + ".wav", samples, settings.sample_rate_hz, tacho ? 2 : 1);
     write_truth(*base + ".truth.json", *rig_path, cfg.rig, settings, result, tacho, noise_rel);
   } catch (const std::runtime_error& e) {
     throw UsageError(std::string("--out: ") + e.what());

@@ -30,6 +30,9 @@ void write_wav(const std::string& path, std::span<const double> samples_interlea
   info.format = SF_FORMAT_WAV | SF_FORMAT_FLOAT;
   std::unique_ptr<SNDFILE, int (*)(SNDFILE*)> file(sf_open(path.c_str(), SFM_WRITE, &info), &sf_close);
   if (!file) throw std::runtime_error("write_wav " + path + ": cannot create (libsndfile: " + sf_strerror(nullptr) + ")");
+  // No PEAK chunk: libsndfile stamps it with the wall-clock time, so the same samples would give
+  // different bytes on every run (simulated replay data must be reproducible bit for bit).
+  sf_command(file.get(), SFC_SET_ADD_PEAK_CHUNK, nullptr, SF_FALSE);
 
   const auto frames = static_cast<sf_count_t>(samples_interleaved.size() / channels);
   const sf_count_t written = sf_writef_double(file.get(), samples_interleaved.data(), frames);
