@@ -7,7 +7,8 @@
 //     Psi_f(omega) = 2 exp(-(s omega - eta0)^2 / 2)  for omega > 0,  0 for omega <= 0,  s = eta0/(2 pi f)
 //
 // (the Morlet's negative-frequency tail, below exp(-eta0^2/2) < 1e-10 for eta0 >= 7, is dropped, so the
-// rows are analytic signals). With this gain, a(t) cos(2 pi f t + beta) with a slowly varying envelope
+// rows are analytic signals; on the DFT grid the DC and Nyquist bins, which sit on the filter's jump, take
+// half the filter value). With this gain, a(t) cos(2 pi f t + beta) with a slowly varying envelope
 // gives |W(t, f)| = a(t) directly: the row's modulus *is* the wavelet envelope of Eq. (12), i.e. this
 // W equals the paper's W_x times K = 2 pi^(1/4) sqrt(alpha0/eta0).
 //
@@ -16,15 +17,24 @@
 // up to the dropped negative-frequency tail; the kernel's time standard deviation is s seconds.
 //
 // Signals are treated as zero outside [0, n): the transform near either end shows the edge effect of a
-// step, which callers skip (see `edge_time_s`). Internally the signal is zero-padded far enough that the
-// circular FFT convolution never wraps around.
+// step, which callers skip. Internally the signal is zero-padded far enough that the Gaussian kernel
+// never wraps around the circular FFT convolution. Small eta0 caveat: for eta0 < sqrt(2 ln(1/truncation))
+// (6.8 at the full-rate default) the kept band reaches DC, where the analytic filter jumps by
+// 2 exp(-eta0^2/2) (7.5e-6 at eta0 = 5); the kernel of that jump decays only like 1/tau. The padding is
+// then extended by max_samples, which keeps the wrapped part below ~3e-6 of max |W| even for a record
+// dominated by a DC level; for eta0 >= 7 this effect is below 1e-10.
 //
 // Band-limited mode: each row only needs the FFT bins where its Gaussian exceeds `truncation` of the
 // peak. Those bins are folded into a short inverse FFT of length D = L/R, which yields W exactly on the
 // decimated time grid t = m R / fs (no carrier to restore: bin k lands in slot k mod D, which is
-// alias-free because every row's band is narrower than D bins). The error against the full-rate
-// transform is bounded by the dropped Gaussian tail (about `truncation` relative to the row's peak
-// gain) plus the FFT round-off of the chosen precision.
+// alias-free because every row's band is narrower than D bins). R is the largest 2,3,5,7-smooth integer
+// for which the band of the highest configured frequency fits, R ~ fs eta0 / (2 c f_max) with
+// c = sqrt(2 ln(1/truncation)); D is a 2,3,5-smooth length. The error against the exact transform is
+// bounded by the dropped Gaussian tail (about `truncation` relative to the row's peak gain) plus the FFT
+// round-off of the chosen precision. Band-limited mode therefore defaults to a coarser truncation
+// (kBandLimitedTruncation = 1e-6: c = 5.3 instead of 6.8, i.e. a 29 % larger R and shorter FFTs), which
+// keeps the error near 1e-6 of max |W| (measured against the exact transform: <= 4.5e-7 double and
+// <= 1.0e-6 float in test_morlet_cwt, 1.2e-7 / 3.5e-7 on the rig workload in bench/bench_cwt.cpp).
 //
 // Real-time contract: all FFTW plans and buffers are made in the constructor; `transform`, `load` and
 // `row` allocate nothing provided the output has been sized once (Scalogram::resize keeps capacity).
@@ -52,9 +62,13 @@ struct MorletCwtConfig {
   std::vector<double> frequencies_hz;  ///< analysis rows, each 0 < f < sample_rate_hz / 2
   std::size_t max_samples = 0;         ///< longest signal that will be transformed, > 0
   bool band_limited = false;           ///< decimated output (see header comment)
-  /// Gaussian level below which filter bins are dropped, relative to the peak; 1e-14 <= t <= 1e-2.
-  /// Full-rate default keeps the transform equal to the exact one to ~1e-10.
-  double truncation = 1e-10;
+  /// Default truncation for full-rate transforms: equal to the exact transform to ~1e-10.
+  static constexpr double kFullRateTruncation = 1e-10;
+  /// Default truncation for band-limited transforms: error ~1e-6 of max |W|, faster (see header comment).
+  static constexpr double kBandLimitedTruncation = 1e-6;
+  /// Gaussian level below which filter bins are dropped, relative to the peak; 1e-14 <= t <= 1e-2, or 0
+  /// (default) for the mode's default: kFullRateTruncation, or kBandLimitedTruncation when band_limited.
+  double truncation = 0.0;
   /// Measure FFTW plans (slower constructor, faster transforms) instead of estimating them.
   bool measure_plans = false;
 };
@@ -115,6 +129,8 @@ class MorletCwt {
   double band_limit_hz() const;
   /// FFT length used internally (padded).
   std::size_t fft_length() const;
+  /// Effective Gaussian truncation level (the configured one, or the mode default when configured as 0).
+  double truncation() const;
 
   /// Time standard deviation of the kernel at frequency f: s = eta0 / (2 pi f), in seconds.
   static double kernel_time_sd_s(double eta0, double f_hz);
