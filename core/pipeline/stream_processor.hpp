@@ -1,0 +1,85 @@
+// The per-impact pipeline on a sample stream, shared by `ridgewatch analyze` (a file as fast as
+// possible) and ridgewatchd (live or paced replay): impact detection -> impact-triggered window with
+// pre-trigger -> band CWT, ridge near the expected natural frequency, damping estimate -> status ->
+// trend/alarm state. Pure computation: no I/O, threads or clock; sample indices are the clock.
+//
+// Real-time contract: buffers and FFT plans are made in the constructor; process() does not allocate
+// except to append to the caller's event vector (reserve it).
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <memory>
+#include <span>
+#include <vector>
+
+#include "core/dsp/damping.hpp"
+#include "core/pipeline/impact_event.hpp"
+#include "core/trend/trend_monitor.hpp"
+
+namespace ridgewatch::pipeline {
+
+struct ImpactDetectorConfig {
+  double band_lo_hz = 500.0;     ///< band whose energy triggers (around the natural frequency), Hz
+  double band_hi_hz = 1500.0;    ///< band_lo < band_hi < fs/2
+  double sta_s = 0.0005;         ///< short-term average window, s (> 0)
+  double lta_s = 0.05;           ///< long-term average window, s (> sta_s)
+  double trigger_ratio = 8.0;    ///< STA/LTA ratio that declares an impact (> 1)
+  double holdoff_s = 0.015;      ///< no new trigger within this time after one, s (>= 0)
+  /// Spikes: a sample further than spike_mad from the running median, in MAD units, whose neighbours
+  /// are not, is an isolated outlier; it never triggers and is reported (> 0).
+  double spike_mad = 12.0;
+};
+
+struct ImpactAnalyzerConfig {
+  double f_expected_hz = 854.0;  ///< expected natural frequency of the gear pair, Hz
+  double band_rel = 0.3;         ///< ridge searched within f_expected * (1 +- band_rel), (0, 0.9)
+  double eta0 = 7.0;             ///< Morlet eta0 (Eq. 4), [5, 50]
+  double pretrigger_s = 0.002;   ///< samples kept before the detected onset, s (>= 0)
+  double window_s = 0.035;       ///< decay window analysed after the onset, s (> 0)
+  dsp::DampingMethod method = dsp::DampingMethod::ml;
+  double min_snr_db = 20.0;      ///< below: status low_snr
+  double clip_level = 0.999;     ///< |x| >= clip_level (full scale 1.0) inside the window: clipped
+};
+
+struct PipelineConfig {
+  double sample_rate_hz = 51200.0;  ///< > 0
+  ImpactDetectorConfig detector;
+  ImpactAnalyzerConfig analyzer;
+  trend::TrendConfig trend;
+};
+
+/// Throws std::invalid_argument naming the field ("detector.band_hi_hz: ...") when out of range.
+void validate(const PipelineConfig& config);
+
+class StreamProcessor {
+ public:
+  explicit StreamProcessor(const PipelineConfig& config);
+  ~StreamProcessor();
+  StreamProcessor(const StreamProcessor&) = delete;
+  StreamProcessor& operator=(const StreamProcessor&) = delete;
+
+  /// Feeds the next block. first_index is the absolute index of block[0]; it must not go backwards.
+  /// A jump forward is a data gap (xrun, device loss): an impact in progress is finished with status
+  /// window_cut and detection restarts after the gap. Completed events are appended to `events` in
+  /// onset order, each carrying the alarm state after it.
+  void process(std::span<const float> block, std::uint64_t first_index, std::vector<ImpactEvent>& events);
+
+  /// End of stream: finishes an impact in progress (status window_cut if its window is incomplete).
+  void flush(std::vector<ImpactEvent>& events);
+
+  /// Total samples seen and counters for status lines.
+  std::uint64_t samples_seen() const;
+  std::uint64_t impacts_detected() const;
+  std::uint64_t spikes_seen() const;
+  std::uint64_t gaps_seen() const;
+
+  trend::TrendMonitor& trend();
+  const PipelineConfig& config() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace ridgewatch::pipeline
