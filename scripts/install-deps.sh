@@ -5,6 +5,7 @@ packages=(
   build-essential cmake ninja-build pkg-config
   libeigen3-dev libfftw3-dev libsndfile1-dev libspdlog-dev libyaml-cpp-dev
   libgtest-dev libgmock-dev libbenchmark-dev nlohmann-json3-dev
+  libasound2-dev libgpiod-dev libsystemd-dev systemd
 )
 missing=()
 for p in "${packages[@]}"; do
