@@ -9,86 +9,14 @@
 #include <stdexcept>
 
 #include "cli/args.hpp"
+#include "cli/yaml_reader.hpp"
 #include "core/model/effect_registry.hpp"
 
 namespace ridgewatch::cli {
 
 namespace {
 
-class Reader {
- public:
-  explicit Reader(std::string name) : name_(std::move(name)) {}
-
-  [[noreturn]] void fail(const std::string& path, const std::string& message) const {
-    throw UsageError(name_ + ": " + (path.empty() ? "" : path + ": ") + message);
-  }
-
-  /// `node` must be a mapping whose keys are all in `allowed`.
-  void check_map(const YAML::Node& node, const std::string& path, const std::set<std::string>& allowed) const {
-    if (!node.IsMap()) fail(path.empty() ? "(top level)" : path, "must be a mapping");
-    for (const auto& kv : node) {
-      const std::string key = kv.first.as<std::string>();
-      if (!allowed.count(key)) {
-        std::string known;
-        for (const auto& k : allowed) known += (known.empty() ? "" : ", ") + k;
-        fail(join(path, key), "unknown key (known: " + known + ")");
-      }
-    }
-  }
-
-  static std::string join(const std::string& path, const std::string& key) {
-    return path.empty() ? key : path + "." + key;
-  }
-
-  double number(const YAML::Node& node, const std::string& path) const {
-    if (!node.IsScalar()) fail(path, "must be a number");
-    double x = 0.0;
-    try {
-      x = node.as<double>();
-    } catch (const YAML::Exception&) {
-      fail(path, "must be a number (got '" + node.Scalar() + "')");
-    }
-    if (!std::isfinite(x)) fail(path, "must be a finite number (got " + node.Scalar() + ")");
-    return x;
-  }
-
-  /// Required number with a rule: "positive", "non-negative" or "any".
-  double required(const YAML::Node& parent, const std::string& path, const std::string& key,
-                  const std::string& rule) const {
-    const YAML::Node n = parent[key];
-    if (!n) fail(join(path, key), "missing (required)");
-    return checked(n, join(path, key), rule);
-  }
-
-  double optional(const YAML::Node& parent, const std::string& path, const std::string& key,
-                  const std::string& rule, double fallback) const {
-    const YAML::Node n = parent[key];
-    if (!n) return fallback;
-    return checked(n, join(path, key), rule);
-  }
-
-  int required_count(const YAML::Node& parent, const std::string& path, const std::string& key) const {
-    const double x = required(parent, path, key, "positive");
-    if (x != std::floor(x) || x > 100000) fail(join(path, key), "must be a whole number of teeth (got " + format(x) + ")");
-    return static_cast<int>(x);
-  }
-
-  static std::string format(double x) {
-    std::ostringstream os;
-    os << x;
-    return os.str();
-  }
-
- private:
-  double checked(const YAML::Node& n, const std::string& path, const std::string& rule) const {
-    const double x = number(n, path);
-    if (rule == "positive" && !(x > 0)) fail(path, "must be > 0 (got " + format(x) + ")");
-    if (rule == "non-negative" && x < 0) fail(path, "must be >= 0 (got " + format(x) + ")");
-    return x;
-  }
-
-  std::string name_;
-};
+using Reader = YamlReader;
 
 model::EffectSpec read_effect(const Reader& r, const YAML::Node& node, const std::string& path) {
   model::EffectSpec spec;
@@ -122,12 +50,7 @@ model::EffectSpec read_effect(const Reader& r, const YAML::Node& node, const std
 
 RigConfig parse_rig_yaml(const std::string& text, const std::string& name) {
   const Reader r(name);
-  YAML::Node root;
-  try {
-    root = YAML::Load(text);
-  } catch (const YAML::Exception& e) {
-    r.fail("", std::string("not valid YAML: ") + e.what());
-  }
+  const YAML::Node root = r.parse(text);
   r.check_map(root, "", {"gear", "mesh", "operation", "excitation", "sensor", "model"});
 
   RigConfig cfg;
