@@ -1,0 +1,283 @@
+#include "cli/config_yaml.hpp"
+
+#include <cmath>
+#include <fstream>
+#include <functional>
+#include <set>
+#include <sstream>
+#include <stdexcept>
+
+#include "cli/yaml_reader.hpp"
+
+namespace ridgewatch::cli {
+
+namespace {
+
+// One description of the file layout, walked by the parser and by the printer, so the two cannot
+// drift apart. Range checks live in the components' validate() functions and in check_sources().
+template <typename V>
+void walk(RidgewatchConfig& c, V& v) {
+  v.map("source", [&] {
+    v.text("type", c.source.type);
+    v.num("ring_buffer_s", c.source.ring_buffer_s);
+    v.map("replay", [&] {
+      v.text("path", c.source.replay.path);
+      v.count("channel", c.source.replay.channel, 0, 1023);
+      v.num("rate_hz", c.source.replay.rate_hz);
+      v.num("speed", c.source.replay.speed);
+      v.flag("loop", c.source.replay.loop);
+    });
+    v.map("alsa", [&] {
+      v.text("device", c.source.alsa.device);
+      v.num("rate_hz", c.source.alsa.rate_hz);
+      v.count("channels", c.source.alsa.channels, 1, 64);
+      v.count("channel", c.source.alsa.channel, 0, 63);
+      v.text("format", c.source.alsa.format);
+      v.count("period_frames", c.source.alsa.period_frames, 16, 1 << 20);
+      v.count("buffer_frames", c.source.alsa.buffer_frames, 32, 1 << 22);
+      v.num("retry_min_s", c.source.alsa.retry_min_s);
+      v.num("retry_max_s", c.source.alsa.retry_max_s);
+    });
+  });
+  v.map("pipeline", [&] {
+    auto& d = c.pipeline.detector;
+    auto& a = c.pipeline.analyzer;
+    auto& t = c.pipeline.trend;
+    v.map("detector", [&] {
+      v.num("band_lo_hz", d.band_lo_hz);
+      v.num("band_hi_hz", d.band_hi_hz);
+      v.num("sta_s", d.sta_s);
+      v.num("lta_s", d.lta_s);
+      v.num("trigger_ratio", d.trigger_ratio);
+      v.num("holdoff_s", d.holdoff_s);
+      v.num("spike_mad", d.spike_mad);
+    });
+    v.map("analyzer", [&] {
+      v.num("f_expected_hz", a.f_expected_hz);
+      v.num("band_rel", a.band_rel);
+      v.num("eta0", a.eta0);
+      v.num("pretrigger_s", a.pretrigger_s);
+      v.num("window_s", a.window_s);
+      v.method("method", a.method);
+      v.num("min_snr_db", a.min_snr_db);
+      v.num("clip_level", a.clip_level);
+    });
+    v.map("trend", [&] {
+      v.count("baseline_events", t.baseline_events, 1, 1 << 20);
+      v.nullable("baseline_zeta", t.baseline_zeta);
+      v.nullable("baseline_ln_sd", t.baseline_ln_sd);
+      v.num("ewma_lambda", t.ewma_lambda);
+      v.num("alert_sigma", t.alert_sigma);
+      v.num("danger_sigma", t.danger_sigma);
+      v.num("cusum_k", t.cusum_k);
+      v.num("cusum_h", t.cusum_h);
+      v.num("hysteresis_sigma", t.hysteresis_sigma);
+      v.count("confirm_k", t.confirm_k, 1, 64);
+      v.count("confirm_n", t.confirm_n, 1, 64);
+      v.flag("latching", t.latching);
+      v.flag("alarm_on_decrease", t.alarm_on_decrease);
+    });
+  });
+  v.map("output", [&] {
+    v.text("events", c.output.events);
+    v.text("csv", c.output.csv);
+    v.text("capture_dir", c.output.capture_dir);
+    v.text("source_name", c.output.source_name);
+  });
+  v.map("gpio", [&] {
+    v.flag("enabled", c.gpio.enabled);
+    v.text("chip", c.gpio.chip);
+    v.count("tacho_line", c.gpio.tacho_line, -1, 4095);
+    v.count("alert_line", c.gpio.alert_line, -1, 4095);
+    v.count("danger_line", c.gpio.danger_line, -1, 4095);
+    v.flag("active_low", c.gpio.active_low);
+  });
+  v.map("logging", [&] {
+    v.text("level", c.logging.level);
+    v.num("repeat_interval_s", c.logging.repeat_interval_s);
+    v.num("status_interval_s", c.logging.status_interval_s);
+  });
+}
+
+// Parser: overlays the YAML onto the defaults, rejecting unknown keys.
+class Parser {
+ public:
+  Parser(const YamlReader& r, const YAML::Node& root) : r_(r) { stack_.push_back({root, ""}); }
+
+  void map(const char* key, const std::function<void()>& body) {
+    // Collect the keys this section knows by running the body once in "key collection" mode.
+    const Frame& parent = stack_.back();
+    const std::string path = YamlReader::join(parent.path, key);
+    const YAML::Node node = parent.node.IsMap() ? parent.node[key] : YAML::Node();
+    known_.back().insert(key);
+    if (!node || node.IsNull()) {
+      collect_only(body);
+      return;
+    }
+    stack_.push_back({node, path});
+    known_.emplace_back();
+    body();
+    r_.check_map(node, path, known_.back());
+    known_.pop_back();
+    stack_.pop_back();
+  }
+  void num(const char* key, double& v) { visit(key, [&](const YAML::Node& p, const std::string& path) { r_.read(p, path, key, v); }); }
+  void flag(const char* key, bool& v) { visit(key, [&](const YAML::Node& p, const std::string& path) { r_.read(p, path, key, v); }); }
+  void text(const char* key, std::string& v) { visit(key, [&](const YAML::Node& p, const std::string& path) { r_.read(p, path, key, v); }); }
+  template <typename Int>
+  void count(const char* key, Int& v, long long lo, long long hi) {
+    visit(key, [&](const YAML::Node& p, const std::string& path) { r_.read_count(p, path, key, v, lo, hi); });
+  }
+  void nullable(const char* key, double& v) {
+    visit(key, [&](const YAML::Node& p, const std::string& path) {
+      const YAML::Node n = p[key];
+      if (n && n.IsNull()) {
+        v = NAN;
+      } else {
+        r_.read(p, path, key, v);
+      }
+    });
+  }
+  void method(const char* key, dsp::DampingMethod& m) {
+    visit(key, [&](const YAML::Node& p, const std::string& path) {
+      std::string text;
+      r_.read(p, path, key, text);
+      if (!p[key]) return;
+      if (!dsp::parse_damping_method(text, m))
+        r_.fail(YamlReader::join(path, key), "must be one of two-point, ridge-ls, ml (got '" + text + "')");
+    });
+  }
+  void check_top() { r_.check_map(stack_.front().node, "", known_.front()); }
+
+ private:
+  struct Frame {
+    YAML::Node node;
+    std::string path;
+  };
+
+  template <typename F>
+  void visit(const char* key, F&& read) {
+    known_.back().insert(key);
+    if (collecting_) return;
+    const Frame& f = stack_.back();
+    read(f.node, f.path);
+  }
+  void collect_only(const std::function<void()>& body) {
+    // The section is absent: nothing to read, but nested map() calls still need a frame.
+    const bool was = collecting_;
+    collecting_ = true;
+    known_.emplace_back();
+    stack_.push_back({YAML::Node(), ""});
+    body();
+    stack_.pop_back();
+    known_.pop_back();
+    collecting_ = was;
+  }
+
+  const YamlReader& r_;
+  std::vector<Frame> stack_;
+  std::vector<std::set<std::string>> known_{1};
+  bool collecting_ = false;
+};
+
+// Printer: writes the current values in the same layout.
+class Printer {
+ public:
+  void map(const char* key, const std::function<void()>& body) {
+    line(key, "");
+    ++depth_;
+    body();
+    --depth_;
+  }
+  void num(const char* key, double v) { line(key, YamlReader::format(v)); }
+  void nullable(const char* key, double v) { line(key, std::isfinite(v) ? YamlReader::format(v) : "null"); }
+  void flag(const char* key, bool v) { line(key, v ? "true" : "false"); }
+  void text(const char* key, const std::string& v) {
+    YAML::Emitter e;
+    e << YAML::DoubleQuoted << v;
+    line(key, e.c_str());
+  }
+  template <typename Int>
+  void count(const char* key, Int v, long long, long long) { line(key, std::to_string(v)); }
+  void method(const char* key, dsp::DampingMethod m) { line(key, std::string(dsp::to_string(m))); }
+  std::string str() const { return out_.str(); }
+
+ private:
+  void line(const char* key, const std::string& value) {
+    out_ << std::string(2 * depth_, ' ') << key << ":" << (value.empty() ? "" : " " + value) << "\n";
+  }
+  std::ostringstream out_;
+  int depth_ = 0;
+};
+
+void check_values(const YamlReader& r, const RidgewatchConfig& c) {
+  const SourceConfig& s = c.source;
+  if (s.type != "replay" && s.type != "alsa") r.fail("source.type", "must be replay or alsa (got '" + s.type + "')");
+  if (!(s.ring_buffer_s >= 0.05 && s.ring_buffer_s <= 600))
+    r.fail("source.ring_buffer_s", "must be in [0.05, 600] s (got " + YamlReader::format(s.ring_buffer_s) + ")");
+  if (s.replay.rate_hz != 0 && !(s.replay.rate_hz >= 100 && s.replay.rate_hz <= 5e6))
+    r.fail("source.replay.rate_hz", "must be 0 (not given) or in [100, 5000000] Hz (got " + YamlReader::format(s.replay.rate_hz) + ")");
+  if (!(s.replay.speed >= 0 && s.replay.speed <= 1e6))
+    r.fail("source.replay.speed", "must be 0 (as fast as possible) or a factor > 0 (got " + YamlReader::format(s.replay.speed) + ")");
+  if (!(s.alsa.rate_hz >= 100 && s.alsa.rate_hz <= 5e6))
+    r.fail("source.alsa.rate_hz", "must be in [100, 5000000] Hz (got " + YamlReader::format(s.alsa.rate_hz) + ")");
+  if (s.alsa.channel >= s.alsa.channels)
+    r.fail("source.alsa.channel", "must be below source.alsa.channels (" + std::to_string(s.alsa.channels) + ")");
+  if (s.alsa.format != "S16_LE" && s.alsa.format != "S32_LE" && s.alsa.format != "FLOAT_LE")
+    r.fail("source.alsa.format", "must be S16_LE, S32_LE or FLOAT_LE (got '" + s.alsa.format + "')");
+  if (s.alsa.buffer_frames < 2 * s.alsa.period_frames)
+    r.fail("source.alsa.buffer_frames", "must be at least 2 x source.alsa.period_frames");
+  if (!(s.alsa.retry_min_s > 0 && s.alsa.retry_max_s >= s.alsa.retry_min_s && s.alsa.retry_max_s <= 3600))
+    r.fail("source.alsa.retry_min_s", "need 0 < retry_min_s <= retry_max_s <= 3600 s");
+  if (c.output.events.empty()) r.fail("output.events", "must be a path or - (standard output)");
+  static const std::set<std::string> levels = {"trace", "debug", "info", "warn", "error"};
+  if (!levels.count(c.logging.level)) r.fail("logging.level", "must be trace, debug, info, warn or error (got '" + c.logging.level + "')");
+  if (!(c.logging.repeat_interval_s >= 0)) r.fail("logging.repeat_interval_s", "must be >= 0");
+  if (!(c.logging.status_interval_s > 0)) r.fail("logging.status_interval_s", "must be > 0");
+  if (c.gpio.enabled && c.gpio.chip.empty()) r.fail("gpio.chip", "must name a GPIO chip when gpio.enabled");
+  // The pipeline's own checks. A replayed file's rate is known only when it opens (the checks run
+  // again then, with the real rate); here the largest accepted rate stands in for it.
+  pipeline::PipelineConfig p = c.pipeline;
+  p.sample_rate_hz = s.type == "alsa" ? s.alsa.rate_hz : 5e6;
+  try {
+    pipeline::validate(p);
+  } catch (const std::invalid_argument& e) {
+    r.fail("", std::string("pipeline.") + e.what());
+  }
+}
+
+}  // namespace
+
+RidgewatchConfig default_config() { return RidgewatchConfig{}; }
+
+RidgewatchConfig parse_config(const std::string& text, const std::string& name) {
+  const YamlReader r(name);
+  const YAML::Node root = r.parse(text);
+  RidgewatchConfig c = default_config();
+  if (root.IsNull()) {  // an empty file means all defaults
+    check_values(r, c);
+    return c;
+  }
+  Parser p(r, root);
+  walk(c, p);
+  p.check_top();
+  check_values(r, c);
+  return c;
+}
+
+RidgewatchConfig load_config_file(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) throw UsageError(path + ": cannot open configuration file");
+  std::ostringstream text;
+  text << in.rdbuf();
+  return parse_config(text.str(), path);
+}
+
+std::string to_yaml(const RidgewatchConfig& config) {
+  RidgewatchConfig c = config;
+  Printer p;
+  walk(c, p);
+  return p.str();
+}
+
+}  // namespace ridgewatch::cli

@@ -1,0 +1,80 @@
+// The ridgewatch configuration file (YAML): one place maps every component's Config struct to keys.
+// `config/ridgewatch.yaml` documents every key with unit and default; `ridgewatchd --print-defaults`
+// prints the defaults in the same layout. Unknown or mistyped keys, wrong types and out-of-range values
+// are UsageErrors (exit 2) naming the file and the YAML path, e.g.
+//   "ridgewatch.yaml: pipeline.analyzer.window_s: must be > 0 (got 0)".
+#pragma once
+
+#include <string>
+
+#include "core/pipeline/stream_processor.hpp"
+
+namespace ridgewatch::cli {
+
+struct ReplaySourceConfig {
+  std::string path;            ///< file to replay (required when source.type is replay)
+  std::size_t channel = 0;     ///< 0-based channel
+  double rate_hz = 0.0;        ///< sample rate of one-column CSV files; 0: not given
+  double speed = 1.0;          ///< 1 = real time, N = N x real time, 0 = as fast as possible
+  bool loop = false;           ///< start again at the end (sample indices keep counting)
+};
+
+struct AlsaSourceConfig {
+  std::string device = "default";
+  double rate_hz = 51200.0;
+  std::size_t channels = 1;
+  std::size_t channel = 0;
+  std::string format = "S32_LE";  ///< S16_LE, S32_LE or FLOAT_LE
+  std::size_t period_frames = 1024;
+  std::size_t buffer_frames = 8192;
+  double retry_min_s = 0.5;       ///< device loss: first retry after this, doubling
+  double retry_max_s = 30.0;      ///< up to this
+};
+
+struct SourceConfig {
+  std::string type = "replay";  ///< replay or alsa
+  ReplaySourceConfig replay;
+  AlsaSourceConfig alsa;
+  double ring_buffer_s = 4.0;   ///< acquisition ring buffer length (rounded up to a power of two samples)
+};
+
+struct OutputConfig {
+  std::string events = "-";       ///< JSON Lines event log; "-" = standard output
+  std::string csv;                ///< optional CSV event log
+  std::string capture_dir;        ///< capture-on-trigger: each impact window as WAV + sidecar JSON
+  std::string source_name;        ///< `source` field of the events; empty: file path or ALSA device
+};
+
+struct GpioConfig {
+  bool enabled = false;
+  std::string chip = "gpiochip0";
+  int tacho_line = -1;    ///< once-per-revolution input line offset, -1: none
+  int alert_line = -1;    ///< relay output, energised while not in alert/danger (fail-safe)
+  int danger_line = -1;   ///< relay output, energised while not in danger (fail-safe)
+  bool active_low = false;
+};
+
+struct LoggingConfig {
+  std::string level = "info";       ///< trace, debug, info, warn, error
+  double repeat_interval_s = 60.0;  ///< identical warnings are logged at most this often
+  double status_interval_s = 10.0;  ///< systemd STATUS= and log status line period
+};
+
+struct RidgewatchConfig {
+  SourceConfig source;
+  pipeline::PipelineConfig pipeline;  ///< sample_rate_hz comes from the source, not from the file
+  OutputConfig output;
+  GpioConfig gpio;
+  LoggingConfig logging;
+};
+
+/// Defaults of every key.
+RidgewatchConfig default_config();
+/// Reads and checks a configuration file (keys absent from the file keep their defaults).
+RidgewatchConfig load_config_file(const std::string& path);
+/// Same from text; `name` stands for the file in messages.
+RidgewatchConfig parse_config(const std::string& text, const std::string& name);
+/// The configuration as YAML in the file's layout (for --print-defaults and logs).
+std::string to_yaml(const RidgewatchConfig& config);
+
+}  // namespace ridgewatch::cli
