@@ -1,0 +1,336 @@
+#include "daemon/daemon.hpp"
+
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <atomic>
+#include <bit>
+#include <chrono>
+#include <cmath>
+#include <ctime>
+#include <thread>
+#include <vector>
+
+#include "cli/args.hpp"
+#include "cli/event_json.hpp"
+#include "core/pipeline/stream_processor.hpp"
+#include "core/rt/spsc_ring_buffer.hpp"
+#include "daemon/event_log.hpp"
+#include "daemon/log_limiter.hpp"
+#include "daemon/notifier.hpp"
+#include "daemon/sources.hpp"
+
+namespace ridgewatch::daemon {
+
+namespace {
+
+std::atomic<bool> g_stop{false};
+std::atomic<bool> g_reload{false};
+std::atomic<bool> g_latch_reset{false};
+
+using Clock = std::chrono::steady_clock;
+
+std::string iso8601_utc(std::chrono::system_clock::time_point tp) {
+  const auto secs = std::chrono::time_point_cast<std::chrono::seconds>(tp);
+  const auto ms = std::chrono::duration_cast<std::chrono::milliseconds>(tp - secs).count();
+  const std::time_t t = std::chrono::system_clock::to_time_t(secs);
+  std::tm tm{};
+  gmtime_r(&t, &tm);
+  char buf[40];
+  std::snprintf(buf, sizeof buf, "%04d-%02d-%02dT%02d:%02d:%02d.%03dZ", tm.tm_year + 1900, tm.tm_mon + 1, tm.tm_mday,
+                tm.tm_hour, tm.tm_min, tm.tm_sec, static_cast<int>(ms));
+  return buf;
+}
+
+}  // namespace
+
+void Daemon::request_stop() { g_stop.store(true, std::memory_order_relaxed); }
+void Daemon::request_reload() { g_reload.store(true, std::memory_order_relaxed); }
+void Daemon::request_latch_reset() { g_latch_reset.store(true, std::memory_order_relaxed); }
+void Daemon::clear_requests() {
+  g_stop.store(false);
+  g_reload.store(false);
+  g_latch_reset.store(false);
+}
+
+struct Daemon::Impl {
+  DaemonOptions options;
+  cli::RidgewatchConfig cfg;
+  DaemonStats stats;
+  double fs = 0.0;
+  bool live = false;
+  std::string source_name;
+
+  std::unique_ptr<drivers::SampleSource> source;
+  std::unique_ptr<rt::SpscRingBuffer<float>> ring;
+  std::unique_ptr<pipeline::StreamProcessor> processor;
+  std::unique_ptr<LineFile> events_out, csv_out;
+
+  std::thread acquisition;
+  std::atomic<bool> acq_stop{false};
+  std::atomic<bool> acq_done{false};
+  std::atomic<std::uint64_t> acq_samples{0};
+  std::string acq_error;  // written by the acquisition thread before acq_done (release)
+
+  SystemdNotifier notifier;
+  LogLimiter limiter{60.0};
+  std::chrono::system_clock::time_point wall_at_start;
+
+  void warn_limited(const std::string& key, const std::string& message) {
+    std::uint64_t suppressed = 0;
+    if (!limiter.allow(key, Clock::now(), suppressed)) return;
+    if (suppressed > 0)
+      spdlog::warn("{} (repeated {} more times since last reported)", message, suppressed);
+    else
+      spdlog::warn("{}", message);
+  }
+
+  void open_outputs() {
+    events_out = std::make_unique<LineFile>(cfg.output.events);
+    if (events_out->fault()) spdlog::error("{}", events_out->last_error());
+    csv_out.reset();
+    if (!cfg.output.csv.empty()) {
+      csv_out = std::make_unique<LineFile>(cfg.output.csv, event_csv_header());
+      if (csv_out->fault()) spdlog::error("{}", csv_out->last_error());
+    }
+  }
+
+  void make_processor() {
+    pipeline::PipelineConfig p = cfg.pipeline;
+    p.sample_rate_hz = fs;
+    try {
+      pipeline::validate(p);
+    } catch (const std::invalid_argument& e) {
+      throw cli::UsageError(std::string("pipeline.") + e.what() + " (at the source's sample rate " +
+                            std::to_string(fs) + " Hz)");
+    }
+    processor = std::make_unique<pipeline::StreamProcessor>(p);
+  }
+
+  void acquire() {
+    // Blocks of ~10 ms keep latency low without making the ring's atomics a cost.
+    const auto block = static_cast<std::size_t>(std::clamp(fs / 100.0, 64.0, 65536.0));
+    std::vector<double> in(block);
+    std::vector<float> out(block);
+    try {
+      while (!acq_stop.load(std::memory_order_relaxed)) {
+        const std::size_t n = source->read(in);
+        if (const std::uint64_t lost = take_source_gap(*source); lost > 0) ring->skip(lost);
+        if (n == 0) break;
+        for (std::size_t i = 0; i < n; ++i) out[i] = static_cast<float>(in[i]);
+        ring->write(std::span<const float>(out.data(), n));  // a full ring drops and counts (overrun)
+        acq_samples.fetch_add(n, std::memory_order_relaxed);
+      }
+    } catch (const std::exception& e) {
+      acq_error = e.what();
+    }
+    acq_done.store(true, std::memory_order_release);
+  }
+
+  void emit(const std::vector<pipeline::ImpactEvent>& events) {
+    for (const auto& e : events) {
+      ++stats.events;
+      if (e.status == pipeline::ImpactStatus::ok) ++stats.events_ok;
+      const std::string wall = live ? iso8601_utc(wall_at_start + std::chrono::duration_cast<std::chrono::system_clock::duration>(
+                                                                      std::chrono::duration<double>(e.t_s)))
+                                    : std::string();
+      if (!events_out->write_line(cli::event_json(e, source_name, wall))) {
+        ++stats.events_failed_to_write;
+        warn_limited("events-write", events_out->last_error() + "; event at sample " + std::to_string(e.sample_index) +
+                                         " not written (" + std::to_string(stats.events_failed_to_write) +
+                                         " lost so far); processing continues");
+      }
+      if (csv_out && !csv_out->write_line(event_csv_row(e, source_name)))
+        warn_limited("csv-write", csv_out->last_error());
+      if (!cfg.output.capture_dir.empty()) capture(e);
+      if (e.alarm.transition()) {
+        const auto level = e.alarm.level;
+        const std::string msg = fmt::format("alarm {} -> {} at t = {:.3f} s (sample {}), zeta = {:.5f}",
+                                            pipeline::to_string(e.alarm.previous), pipeline::to_string(level), e.t_s,
+                                            e.sample_index, e.zeta);
+        if (level == pipeline::AlarmLevel::alert || level == pipeline::AlarmLevel::danger)
+          spdlog::warn("{}", msg);
+        else
+          spdlog::info("{}", msg);
+      }
+    }
+  }
+
+  void capture(const pipeline::ImpactEvent& e) {
+    const double pre_s = cfg.pipeline.analyzer.pretrigger_s;
+    const double win_s = cfg.pipeline.analyzer.window_s;
+    const auto pre = static_cast<std::uint64_t>(std::ceil(pre_s * fs));
+    const std::uint64_t first = e.sample_index > pre ? e.sample_index - pre : 0;
+    std::vector<float> window(static_cast<std::size_t>(std::ceil((pre_s + win_s) * fs)));
+    // The window has been consumed by the processor already; it is still in the ring's history.
+    const auto status = ring->copy_lookback(first, window);
+    if (status != rt::LookbackStatus::ok) {
+      warn_limited("capture", "capture of the impact at sample " + std::to_string(e.sample_index) +
+                                  " skipped: its samples are no longer in the ring buffer");
+      return;
+    }
+    const std::string err = write_capture(cfg.output.capture_dir, e, source_name, window, first, fs);
+    if (!err.empty()) warn_limited("capture-write", "capture failed: " + err);
+  }
+
+  void reload() {
+    ++stats.reloads;
+    notifier.reloading();
+    if (options.config_path.empty()) {
+      spdlog::info("SIGHUP: no configuration file to reload; reopening outputs");
+    } else {
+      try {
+        cli::RidgewatchConfig next = cli::load_config_file(options.config_path);
+        if (options.overrides) options.overrides(next);
+        if (next.source.type != cfg.source.type || next.source.replay.path != cfg.source.replay.path ||
+            next.source.alsa.device != cfg.source.alsa.device)
+          spdlog::warn("SIGHUP: source changes take effect after a restart; keeping the current source");
+        next.source = cfg.source;
+        // Check the new pipeline at the real sample rate before touching anything.
+        pipeline::PipelineConfig p = next.pipeline;
+        p.sample_rate_hz = fs;
+        pipeline::validate(p);
+        // Finish the impact in progress with the old settings, then switch at this block boundary.
+        std::vector<pipeline::ImpactEvent> tail;
+        processor->flush(tail);
+        emit(tail);
+        cfg = next;
+        limiter.set_interval(cfg.logging.repeat_interval_s);
+        make_processor();
+        spdlog::info("SIGHUP: configuration reloaded from {}", options.config_path);
+      } catch (const std::exception& e) {
+        ++stats.reloads_rejected;
+        spdlog::error("SIGHUP: new configuration rejected, keeping the old one: {}", e.what());
+      }
+    }
+    open_outputs();  // reopen (log rotation) or switch to new paths
+    notifier.ready(status_text());
+  }
+
+  std::string status_text() const {
+    return fmt::format("{} samples, {} impacts ({} ok), alarm {}, {} overruns, {} write failures", stats.samples,
+                       stats.events, stats.events_ok,
+                       processor ? pipeline::to_string(processor->trend().state().level) : "?", stats.overruns,
+                       stats.events_failed_to_write);
+  }
+};
+
+Daemon::Daemon(DaemonOptions options) : impl_(std::make_unique<Impl>()) {
+  impl_->options = std::move(options);
+  impl_->cfg = impl_->options.config;
+  impl_->limiter.set_interval(impl_->cfg.logging.repeat_interval_s);
+}
+
+Daemon::~Daemon() {
+  if (impl_->acquisition.joinable()) {
+    impl_->acq_stop.store(true);
+    impl_->acquisition.join();
+  }
+}
+
+const DaemonStats& Daemon::stats() const { return impl_->stats; }
+
+int Daemon::run() {
+  Impl& d = *impl_;
+  try {
+    d.source = open_source(d.cfg.source);
+  } catch (const drivers::InputError& e) {
+    spdlog::critical("{}", e.what());
+    return cli::kExitBadInput;
+  }
+  const drivers::SourceInfo& info = d.source->info();
+  d.fs = info.sample_rate_hz;
+  d.live = d.cfg.source.type == "alsa";
+  d.source_name = !d.cfg.output.source_name.empty() ? d.cfg.output.source_name : info.name;
+  d.make_processor();  // UsageError propagates (exit 2): the pipeline does not fit this sample rate
+  d.open_outputs();
+
+  // Ring: at least ring_buffer_s of samples, plus history for capture look-back.
+  const double history_s = d.cfg.pipeline.analyzer.pretrigger_s + d.cfg.pipeline.analyzer.window_s + 0.5;
+  const auto usable = static_cast<std::size_t>(std::ceil(d.cfg.source.ring_buffer_s * d.fs));
+  const auto history = static_cast<std::size_t>(std::ceil(history_s * d.fs));
+  d.ring = std::make_unique<rt::SpscRingBuffer<float>>(std::bit_ceil(usable + history), history);
+
+  d.wall_at_start = std::chrono::system_clock::now();
+  d.acquisition = std::thread([&d] { d.acquire(); });
+  spdlog::info("started: source {} at {} Hz, events to {}", d.source_name, d.fs, d.cfg.output.events);
+  d.notifier.ready(d.status_text());
+
+  std::vector<float> block(8192);
+  std::vector<pipeline::ImpactEvent> events;
+  events.reserve(256);
+  auto last_status = Clock::now();
+  auto last_ping = Clock::now();
+  std::uint64_t samples_at_last_ping = 0;
+  bool stopping = false;
+  std::uint64_t stop_at_sample = 0;
+
+  for (;;) {
+    if (!stopping && g_stop.exchange(false)) {
+      // Let the impact in progress complete: keep reading one analysis window more (live data keeps
+      // coming for that long), then stop the acquisition.
+      stopping = true;
+      const double extra_s = d.cfg.pipeline.analyzer.pretrigger_s + d.cfg.pipeline.analyzer.window_s + 0.005;
+      stop_at_sample = d.processor->samples_seen() + static_cast<std::uint64_t>(std::ceil(extra_s * d.fs));
+      d.notifier.stopping();
+      spdlog::info("stop requested: finishing the impact in progress");
+    }
+    if (stopping && d.processor->samples_seen() >= stop_at_sample) d.acq_stop.store(true);
+    if (g_reload.exchange(false)) d.reload();
+    if (g_latch_reset.exchange(false)) {
+      d.processor->trend().reset_latch();
+      spdlog::info("alarm latch reset");
+    }
+
+    const auto r = d.ring->read(block);
+    if (r.count > 0) {
+      d.processor->process(std::span<const float>(block.data(), r.count), r.first_stream_index, events);
+      d.stats.samples += r.count;
+      d.emit(events);
+      events.clear();
+    } else if (d.acq_done.load(std::memory_order_acquire)) {
+      if (d.ring->read_regions().size() == 0) break;  // input ended (or stop) and everything is processed
+    } else {
+      std::this_thread::sleep_for(std::chrono::milliseconds(2));
+    }
+
+    const auto now = Clock::now();
+    // Watchdog: ping only while samples keep arriving, so a stalled input gets the service restarted.
+    if (d.notifier.watchdog_enabled() && now - last_ping >= d.notifier.watchdog_interval() / 3) {
+      const std::uint64_t acquired = d.acq_samples.load(std::memory_order_relaxed);
+      if (acquired > samples_at_last_ping) {
+        d.notifier.watchdog();
+        samples_at_last_ping = acquired;
+        last_ping = now;
+      } else if (now - last_ping >= d.notifier.watchdog_interval() / 3) {
+        d.warn_limited("stall", "no samples from the source: withholding the watchdog ping");
+      }
+    }
+    if (now - last_status >= std::chrono::duration<double>(d.cfg.logging.status_interval_s)) {
+      d.stats.overruns = d.ring->overrun_items();
+      d.notifier.status(d.status_text());
+      spdlog::info("status: {}", d.status_text());
+      last_status = now;
+    }
+  }
+
+  d.acq_stop.store(true);
+  if (d.acquisition.joinable()) d.acquisition.join();
+  d.processor->flush(events);
+  d.emit(events);
+  events.clear();
+  d.stats.overruns = d.ring->overrun_items();
+  d.stats.gaps = d.processor->gaps_seen();
+  d.stats.spikes = d.processor->spikes_seen();
+  d.events_out->sync();
+  if (d.csv_out) d.csv_out->sync();
+  spdlog::info("stopped: {}", d.status_text());
+  if (!d.acq_error.empty()) {
+    spdlog::error("source failed: {}", d.acq_error);
+    ++d.stats.source_errors;
+    return cli::kExitBadInput;
+  }
+  return cli::kExitOk;
+}
+
+}  // namespace ridgewatch::daemon

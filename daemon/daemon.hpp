@@ -1,0 +1,64 @@
+// ridgewatchd's composition: source -> acquisition thread -> SPSC ring buffer -> processing loop
+// (StreamProcessor) -> event log / CSV / captures / GPIO relays / systemd notification.
+//
+// Threads: exactly two. The acquisition thread only reads the source and writes the ring buffer (it
+// never blocks on the consumer; overruns are counted by the ring). The processing loop runs on the
+// calling thread and owns everything else. Signals only set flags (see request_*), which the
+// processing loop polls between blocks, so configuration changes happen at block boundaries.
+#pragma once
+
+#include <atomic>
+#include <cstdint>
+#include <functional>
+#include <memory>
+#include <string>
+
+#include "cli/config_yaml.hpp"
+#include "drivers/sample_source.hpp"
+
+namespace ridgewatch::daemon {
+
+struct DaemonOptions {
+  cli::RidgewatchConfig config;
+  std::string config_path;  ///< re-read on SIGHUP; empty: reload keeps the current configuration
+  /// Command-line overrides re-applied after every reload (so --replay/--events survive SIGHUP).
+  std::function<void(cli::RidgewatchConfig&)> overrides;
+};
+
+/// Counters for the status line, tests and the exit summary.
+struct DaemonStats {
+  std::uint64_t samples = 0, events = 0, events_ok = 0, overruns = 0, gaps = 0, spikes = 0;
+  std::uint64_t events_failed_to_write = 0, source_errors = 0, reloads = 0, reloads_rejected = 0;
+};
+
+class Daemon {
+ public:
+  explicit Daemon(DaemonOptions options);
+  ~Daemon();
+  Daemon(const Daemon&) = delete;
+  Daemon& operator=(const Daemon&) = delete;
+
+  /// Runs until the source ends (replay without loop) or a stop is requested. Returns the exit code:
+  /// 0 after a clean stop or end of input, 3 when the source cannot be opened or fails for good.
+  /// Every event detected before the stop is written.
+  int run();
+
+  const DaemonStats& stats() const;
+
+  // Async-signal-safe requests (set from signal handlers; acted on by run()).
+  static void request_stop();
+  static void request_reload();
+  static void request_latch_reset();
+  /// Clears pending requests (tests run several daemons in one process).
+  static void clear_requests();
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+/// Opens the configured source (replay file with pacing/looping, or ALSA). Throws drivers::InputError
+/// (file or device problems) or cli::UsageError (configuration).
+std::unique_ptr<drivers::SampleSource> open_source(const cli::SourceConfig& config);
+
+}  // namespace ridgewatch::daemon

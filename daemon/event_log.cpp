@@ -1,0 +1,133 @@
+#include "daemon/event_log.hpp"
+
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <vector>
+
+#include "cli/event_json.hpp"
+#include "drivers/wav_writer.hpp"
+
+namespace ridgewatch::daemon {
+
+LineFile::LineFile(std::string path, std::string header) : path_(std::move(path)), header_(std::move(header)) {
+  open();
+}
+
+LineFile::~LineFile() {
+  if (owns_fd_ && fd_ >= 0) ::close(fd_);
+}
+
+bool LineFile::open() {
+  if (path_ == "-") {
+    fd_ = STDOUT_FILENO;
+    owns_fd_ = false;
+    return true;
+  }
+  fd_ = ::open(path_.c_str(), O_WRONLY | O_CREAT | O_APPEND | O_CLOEXEC, 0644);
+  owns_fd_ = fd_ >= 0;
+  if (fd_ < 0) {
+    fault_ = true;
+    last_error_ = path_ + ": cannot open for writing: " + std::strerror(errno);
+    return false;
+  }
+  struct stat st {};
+  if (!header_.empty() && ::fstat(fd_, &st) == 0 && st.st_size == 0) {
+    const std::string h = header_ + "\n";
+    if (::write(fd_, h.data(), h.size()) != static_cast<ssize_t>(h.size())) {
+      fault_ = true;
+      last_error_ = path_ + ": cannot write header: " + std::strerror(errno);
+    }
+  }
+  return true;
+}
+
+bool LineFile::write_line(const std::string& text) {
+  if (fd_ < 0 && !open()) {
+    ++failed_;
+    return false;
+  }
+  const std::string line = text + "\n";
+  const ssize_t n = ::write(fd_, line.data(), line.size());
+  if (n == static_cast<ssize_t>(line.size())) {
+    ++written_;
+    fault_ = false;
+    return true;
+  }
+  // A short write leaves a partial line; cut it back so the file stays valid JSON Lines.
+  if (n > 0 && owns_fd_) {
+    const off_t end = ::lseek(fd_, 0, SEEK_END);
+    if (end >= n && ::ftruncate(fd_, end - n) != 0) {
+      last_error_ = path_ + ": could not remove a partial line: " + std::strerror(errno);
+    }
+  }
+  ++failed_;
+  fault_ = true;
+  last_error_ = path_ + ": write failed: " + (n < 0 ? std::strerror(errno) : "short write (disk full?)");
+  return false;
+}
+
+void LineFile::reopen() {
+  if (path_ == "-") return;
+  if (owns_fd_ && fd_ >= 0) ::close(fd_);
+  fd_ = -1;
+  open();
+}
+
+void LineFile::sync() {
+  if (fd_ >= 0 && owns_fd_) ::fsync(fd_);
+}
+
+std::string event_csv_header() {
+  return "t_s,sample_index,source,f_hz,zeta,zeta_ci95_lo,zeta_ci95_hi,snr_db,status,alarm";
+}
+
+std::string event_csv_row(const pipeline::ImpactEvent& e, const std::string& source) {
+  auto num = [](double v) {
+    if (!std::isfinite(v)) return std::string();
+    std::ostringstream o;
+    o.precision(10);
+    o << v;
+    return o.str();
+  };
+  std::string quoted = "\"";
+  for (char c : source) quoted += c == '"' ? std::string("\"\"") : std::string(1, c);
+  quoted += "\"";
+  std::ostringstream o;
+  o << num(e.t_s) << ',' << e.sample_index << ',' << quoted << ',' << num(e.f_hz) << ',' << num(e.zeta) << ','
+    << num(e.zeta_ci95_lo) << ',' << num(e.zeta_ci95_hi) << ',' << num(e.snr_db) << ',' << pipeline::to_string(e.status)
+    << ',' << pipeline::to_string(e.alarm.level);
+  return o.str();
+}
+
+std::string write_capture(const std::string& dir, const pipeline::ImpactEvent& e, const std::string& source,
+                          std::span<const float> window, std::uint64_t window_first_index, double fs) {
+  try {
+    std::filesystem::create_directories(dir);
+    const std::string base = (std::filesystem::path(dir) / ("impact-" + std::to_string(e.sample_index))).string();
+    std::vector<double> samples(window.begin(), window.end());
+    drivers::write_wav(base + ".wav", samples, fs, 1);
+    nlohmann::ordered_json side = {{"source", source},
+                                   {"sample_rate_hz", fs},
+                                   {"first_sample_index", window_first_index},
+                                   {"onset_sample_index", e.sample_index},
+                                   {"event", nlohmann::ordered_json::parse(cli::event_json(e, source))}};
+    std::ofstream f(base + ".json");
+    f << side.dump(2) << "\n";
+    f.close();
+    if (!f) return base + ".json: write failed";
+    return {};
+  } catch (const std::exception& ex) {
+    return ex.what();
+  }
+}
+
+}  // namespace ridgewatch::daemon

@@ -1,0 +1,55 @@
+// Event outputs of the daemon: the JSON Lines log (the contract in the README), an optional CSV log,
+// and capture-on-trigger files. Writes never throw: a line that cannot be written (disk full,
+// permission lost) is counted, the log enters a fault state, and writing resumes by itself when the
+// file accepts data again. Each line goes out in one write(2) to an O_APPEND descriptor, so a line is
+// either complete or absent, also when the process is killed.
+#pragma once
+
+#include <cstdint>
+#include <span>
+#include <string>
+
+#include "core/pipeline/impact_event.hpp"
+
+namespace ridgewatch::daemon {
+
+class LineFile {
+ public:
+  /// path "-" is standard output. `header` is written when the file is new or empty.
+  LineFile(std::string path, std::string header = {});
+  ~LineFile();
+  LineFile(const LineFile&) = delete;
+  LineFile& operator=(const LineFile&) = delete;
+
+  /// Appends text + '\n'. Returns false (and counts) when it could not be written completely.
+  bool write_line(const std::string& text);
+  /// Closes and opens the path again (log rotation, SIGHUP).
+  void reopen();
+  /// fsync(2): called before exit so written events survive a power cut.
+  void sync();
+
+  const std::string& path() const { return path_; }
+  std::uint64_t lines_written() const { return written_; }
+  std::uint64_t lines_failed() const { return failed_; }
+  bool fault() const { return fault_; }
+  const std::string& last_error() const { return last_error_; }
+
+ private:
+  bool open();
+  std::string path_, header_;
+  int fd_ = -1;
+  bool owns_fd_ = false;
+  bool fault_ = false;
+  std::uint64_t written_ = 0, failed_ = 0;
+  std::string last_error_;
+};
+
+/// One CSV row per event (header: t_s,sample_index,source,f_hz,zeta,zeta_ci95_lo,zeta_ci95_hi,snr_db,status,alarm).
+std::string event_csv_row(const pipeline::ImpactEvent& e, const std::string& source);
+std::string event_csv_header();
+
+/// Writes BASE.wav (float32) and BASE.json for one impact window; returns an error text or "".
+std::string write_capture(const std::string& dir, const pipeline::ImpactEvent& e, const std::string& source,
+                          std::span<const float> window, std::uint64_t window_first_index, double sample_rate_hz);
+
+}  // namespace ridgewatch::daemon

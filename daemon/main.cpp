@@ -1,0 +1,137 @@
+// ridgewatchd: the monitoring daemon. Usually started by systemd (systemd/ridgewatchd.service).
+#include <signal.h>
+#include <spdlog/sinks/stdout_sinks.h>
+#include <spdlog/spdlog.h>
+
+#include <cstdlib>
+#include <iostream>
+#include <string>
+#include <vector>
+
+#include "cli/args.hpp"
+#include "cli/config_yaml.hpp"
+#include "daemon/daemon.hpp"
+#include "drivers/sample_source.hpp"
+#include "ridgewatch_version.hpp"
+
+namespace {
+
+namespace cli = ridgewatch::cli;
+using ridgewatch::daemon::Daemon;
+
+constexpr const char* kUsage =
+    "usage: ridgewatchd [--config FILE] [--replay FILE] [--speed max|N] [--loop] [--channel N]\n"
+    "                   [--events PATH|-] [--csv PATH] [--capture-dir DIR] [--log-level LEVEL]\n"
+    "       ridgewatchd --check-config FILE | --print-defaults | --version | --help\n"
+    "signals: TERM/INT finish the impact in progress, flush and exit 0; HUP reloads the configuration\n"
+    "         (a bad one is rejected, the old one kept) and reopens the output files; USR1 resets a\n"
+    "         latched alarm.\n"
+    "exit codes: 0 ok, 2 bad usage or configuration, 3 input (file/device) failed\n";
+
+extern "C" void on_signal(int sig) {
+  switch (sig) {
+    case SIGTERM:
+    case SIGINT: Daemon::request_stop(); break;
+    case SIGHUP: Daemon::request_reload(); break;
+    case SIGUSR1: Daemon::request_latch_reset(); break;
+    default: break;
+  }
+}
+
+void install_signal_handlers() {
+  struct sigaction sa {};
+  sa.sa_handler = on_signal;
+  sigemptyset(&sa.sa_mask);
+  sa.sa_flags = SA_RESTART;
+  for (int sig : {SIGTERM, SIGINT, SIGHUP, SIGUSR1}) sigaction(sig, &sa, nullptr);
+  signal(SIGPIPE, SIG_IGN);  // a closed stdout reader must not kill the daemon; writes report EPIPE
+}
+
+void setup_logging(const std::string& level) {
+  auto logger = spdlog::stderr_logger_st("ridgewatchd");
+  // Under systemd (JOURNAL_STREAM set) journald adds the timestamp itself.
+  logger->set_pattern(std::getenv("JOURNAL_STREAM") ? "%l: %v" : "%Y-%m-%d %H:%M:%S.%e %l: %v");
+  logger->set_level(spdlog::level::from_str(level));
+  logger->flush_on(spdlog::level::trace);
+  spdlog::set_default_logger(logger);
+}
+
+int run(const std::vector<std::string>& argv) {
+  const cli::Args args(argv,
+                       {"--config", "--replay", "--speed", "--channel", "--events", "--csv", "--capture-dir",
+                        "--log-level", "--check-config"},
+                       {"--print-defaults", "--version", "--help", "--loop"});
+  if (!args.positional().empty()) throw cli::UsageError("unexpected argument '" + args.positional().front() + "'");
+  if (args.has("--help")) {
+    std::cout << kUsage;
+    return cli::kExitOk;
+  }
+  if (args.has("--version")) {
+    std::cout << "ridgewatchd " << RIDGEWATCH_VERSION << "\n";
+    return cli::kExitOk;
+  }
+  if (args.has("--print-defaults")) {
+    std::cout << cli::to_yaml(cli::default_config());
+    return cli::kExitOk;
+  }
+  if (const auto file = args.value("--check-config")) {
+    cli::load_config_file(*file);  // throws UsageError naming the key
+    std::cout << *file << ": ok\n";
+    return cli::kExitOk;
+  }
+
+  const auto config_path = args.value("--config");
+  // Command-line overrides, applied on top of the file at start and after every reload.
+  auto overrides = [&args](cli::RidgewatchConfig& c) {
+    if (const auto f = args.value("--replay")) {
+      c.source.type = "replay";
+      c.source.replay.path = *f;
+    }
+    if (const auto s = args.value("--speed")) {
+      if (*s == "max") {
+        c.source.replay.speed = 0.0;
+      } else {
+        c.source.replay.speed = args.number("--speed", 1.0, 1e-3, 1e6);
+      }
+    }
+    if (args.has("--loop")) c.source.replay.loop = true;
+    if (args.has("--channel")) {
+      const auto ch = static_cast<std::size_t>(args.integer("--channel", 0, 0, 1023));
+      c.source.replay.channel = ch;
+      c.source.alsa.channel = ch;
+    }
+    if (const auto e = args.value("--events")) c.output.events = *e;
+    if (const auto e = args.value("--csv")) c.output.csv = *e;
+    if (const auto e = args.value("--capture-dir")) c.output.capture_dir = *e;
+    if (const auto e = args.value("--log-level")) c.logging.level = *e;
+  };
+  cli::RidgewatchConfig config = config_path ? cli::load_config_file(*config_path) : cli::default_config();
+  overrides(config);
+  if (config.source.type == "replay" && config.source.replay.path.empty())
+    throw cli::UsageError("no input: set source.replay.path in the configuration or pass --replay FILE");
+  if (const auto lvl = args.value("--log-level");
+      lvl && *lvl != "trace" && *lvl != "debug" && *lvl != "info" && *lvl != "warn" && *lvl != "error")
+    throw cli::UsageError("--log-level: '" + *lvl + "' is not one of trace, debug, info, warn, error");
+
+  setup_logging(config.logging.level);
+  install_signal_handlers();
+  Daemon daemon({config, config_path.value_or(""), overrides});
+  return daemon.run();
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  try {
+    return run(std::vector<std::string>(argv + 1, argv + argc));
+  } catch (const cli::UsageError& e) {
+    std::cerr << "ridgewatchd: " << e.what() << "\n";
+    return cli::kExitUsage;
+  } catch (const ridgewatch::drivers::InputError& e) {
+    std::cerr << "ridgewatchd: " << e.what() << "\n";
+    return cli::kExitBadInput;
+  } catch (const std::exception& e) {
+    std::cerr << "ridgewatchd: internal error: " << e.what() << "\n";
+    return 1;
+  }
+}
