@@ -14,6 +14,8 @@ namespace {
 constexpr const char* kUsage =
     "usage: ridgewatch COMMAND [ARGS]\n"
     "commands:\n"
+    "  analyze FILE [--config F] [--channel N] [--rate HZ]\n"
+    "      detect impacts and print one JSON line per impact (frequency, damping ratio, status, alarm)\n"
     "  modes FILE [--channel N] [--rate HZ] [--fmin HZ] [--fmax HZ] [--max-modes K]\n"
     "             [--method two-point|ridge-ls|ml] [--eta0 X]\n"
     "      identify the modes (frequency, damping ratio, 95 % interval) of one free response\n"
@@ -29,6 +31,7 @@ struct Command {
 };
 
 constexpr Command kCommands[] = {
+    {"analyze", ridgewatch::cli::run_analyze},
     {"modes", ridgewatch::cli::run_modes},
     {"simulate", ridgewatch::cli::run_simulate},
 };

@@ -190,8 +190,10 @@ double phase_slope_frequency(const EnvelopeRow& row, const EnvelopeWindow& win, 
   std::vector<double> phase(win.end - win.start);
   double acc = 0.0;
   phase[0] = 0.0;
+  const double advance = kTwoPi * row.phase_reference_hz * row.time_step_s;  // 0 unless decimated
+  const std::complex<double> derotate = std::polar(1.0, -advance);
   for (std::size_t c = win.start + 1; c < win.end; ++c) {
-    acc += std::arg(row.w[c] * std::conj(row.w[c - 1]));
+    acc += std::arg(row.w[c] * std::conj(row.w[c - 1]) * derotate) + advance;
     phase[c - win.start] = acc;
   }
   const double noise = win.noise_power;

@@ -88,6 +88,11 @@ struct EnvelopeRow {
   double f_row_hz = 0.0;
   double eta0 = 7.0;
   double noise_power = NAN;  ///< E|W|^2 of the noise alone in this row
+  /// Phase unwrapping reference for decimated rows: phase_slope_frequency unwraps the column-to-column
+  /// phase advance around 2 pi phase_reference_hz time_step_s instead of around 0, so rows whose
+  /// carrier advances by more than pi per column (band-limited transforms) unwrap correctly as long
+  /// as the true frequency is within fs_columns/2 of this reference. 0 (default): plain unwrapping.
+  double phase_reference_hz = 0.0;
 };
 
 /// Envelope window [start, end) in column indices and derived quantities.

@@ -1,0 +1,260 @@
+#include "core/pipeline/impact_analyzer.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+
+#include "core/pipeline/stream_processor.hpp"
+
+namespace ridgewatch::pipeline {
+
+namespace {
+
+constexpr double kTwoPi = 2.0 * std::numbers::pi;
+
+ImpactStatus from_estimate(dsp::EstimateStatus s) {
+  switch (s) {
+    case dsp::EstimateStatus::ok: return ImpactStatus::ok;
+    case dsp::EstimateStatus::too_short: return ImpactStatus::too_short;
+    case dsp::EstimateStatus::low_snr: return ImpactStatus::low_snr;
+    case dsp::EstimateStatus::not_decaying: return ImpactStatus::not_decaying;
+    case dsp::EstimateStatus::fit_failed: return ImpactStatus::fit_failed;
+    case dsp::EstimateStatus::inconsistent: return ImpactStatus::inconsistent;
+  }
+  return ImpactStatus::fit_failed;
+}
+
+}  // namespace
+
+ImpactAnalyzer::ImpactAnalyzer(const ImpactAnalyzerConfig& cfg, double fs) {
+  fs_ = fs;
+  f_expected_ = cfg.f_expected_hz;
+  band_rel_ = cfg.band_rel;
+  ml_band_rel_ = cfg.ml_band_rel;
+  eta0_ = cfg.eta0;
+  min_snr_db_ = cfg.min_snr_db;
+  clip_ = cfg.clip_level;
+  method_ = cfg.method;
+  n_pre_ = static_cast<std::size_t>(std::llround(cfg.pretrigger_s * fs));
+  n_win_ = static_cast<std::size_t>(std::llround(cfg.window_s * fs));
+  n_ml_margin_ = static_cast<std::size_t>(std::ceil(0.0005 * fs));
+
+  const double lo = f_expected_ * (1.0 - band_rel_), hi = f_expected_ * (1.0 + band_rel_);
+  const auto rows = std::max<std::size_t>(
+      3, static_cast<std::size_t>(std::ceil(std::log(hi / lo) * 3.0 * eta0_)) + 1);
+  rows_hz_ = dsp::make_frequency_grid(lo, hi, rows, dsp::GridSpacing::log);
+  dsp::MorletCwtConfig cc;
+  cc.sample_rate_hz = fs;
+  cc.eta0 = eta0_;
+  cc.frequencies_hz = rows_hz_;
+  cc.max_samples = max_samples();
+  cc.band_limited = true;
+  cwt_ = std::make_unique<dsp::MorletCwt<double>>(cc);
+  const std::size_t max_cols = (max_samples() + cwt_->decimation() - 1) / cwt_->decimation() + 1;
+  power_.assign(rows * max_cols, 0.0);
+  w_.assign(max_cols, {});
+  scratch_.assign(max_cols, 0.0);
+  // ML fitters for segments of k/8 of the full decay window, k = 1..8 (at least 64 samples).
+  const std::size_t full = n_win_ > n_ml_margin_ ? n_win_ - n_ml_margin_ : 0;
+  for (std::size_t k = 1; k <= 8; ++k) {
+    const std::size_t len = full * k / 8;
+    if (len < 64 || (!fitter_len_.empty() && len == fitter_len_.back())) continue;
+    fitter_len_.push_back(len);
+    fitters_.push_back(std::make_unique<dsp::SpectralModeFitter>(len, fs));
+  }
+}
+
+ImpactAnalyzer::~ImpactAnalyzer() = default;
+
+ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
+  ImpactEvent ev;
+  ev.sample_index = win.onset_index;
+  ev.t_s = static_cast<double>(win.onset_index) / fs_;
+  const std::span<const double> x = win.samples;
+  const std::size_t n = std::min(x.size(), max_samples());
+  const std::size_t o = win.onset_offset;
+  const double onset_s = static_cast<double>(o) / fs_;
+
+  bool clipped = false;
+  double peak_sq = 0.0;
+  for (std::size_t i = 0; i < n; ++i) {
+    const double a = std::abs(x[i]);
+    clipped = clipped || a >= clip_;
+    peak_sq = std::max(peak_sq, a * a);
+  }
+  auto finish = [&](ImpactStatus computed) {
+    // Data problems first: they explain any estimate failure.
+    if (win.spike) ev.status = ImpactStatus::spike;
+    else if (clipped) ev.status = ImpactStatus::clipped;
+    else if (win.end == WindowEnd::gap) ev.status = ImpactStatus::window_cut;
+    else ev.status = computed;
+    return ev;
+  };
+  const double kernel_s = dsp::MorletCwt<double>::kernel_time_sd_s(eta0_, f_expected_);
+  // Room for the edge skips of both ends plus two kernel widths of decay (the foundation's minimum).
+  if (o >= n || static_cast<double>(n - o) / fs_ < 10.0 * kernel_s)
+    return finish(win.end == WindowEnd::complete ? ImpactStatus::too_short : ImpactStatus::window_cut);
+
+  // Noise: floored at 1e-12 of the peak power (float32 rounding is ~1e-14), so noise-free data give
+  // a finite SNR of at most 120 dB instead of a division by zero.
+  double noise_var = win.noise_var;
+  if (!(noise_var > 1e-12 * peak_sq)) noise_var = 1e-12 * peak_sq;
+  if (!(noise_var > 0)) return finish(ImpactStatus::low_snr);  // all zero
+
+  // 1. CWT rows over the band.
+  cwt_->load(x.first(n));
+  const std::size_t cols = cwt_->columns();
+  const double dt = cwt_->time_step_s();
+  const std::size_t rows = rows_hz_.size();
+  std::span<std::complex<double>> w(w_.data(), cols);
+  for (std::size_t r = 0; r < rows; ++r) {
+    cwt_->row(rows_hz_[r], w);
+    double* p = power_.data() + r * cols;
+    for (std::size_t c = 0; c < cols; ++c) p[c] = std::norm(w[c]);
+  }
+  auto row_noise = [&](double f) { return noise_var * cwt_->noise_gain(f); };
+  // Stationary content (mesh lines, hum harmonics inside the band) has the same power in every
+  // column; the free response decays within the window. Subtracting each row's median power over
+  // the window keeps the impact's ridge and removes the lines' (a line moving through the band
+  // with the speed, e.g. 550 Hz + 20 %, would otherwise out-shine a weak impact).
+  for (std::size_t r = 0; r < rows; ++r) {
+    double* p = power_.data() + r * cols;
+    std::copy(p, p + cols, scratch_.begin());
+    const std::size_t mid = cols / 2;
+    std::nth_element(scratch_.begin(), scratch_.begin() + static_cast<std::ptrdiff_t>(mid),
+                     scratch_.begin() + static_cast<std::ptrdiff_t>(cols));
+    const double med = scratch_[mid];
+    for (std::size_t c = 0; c < cols; ++c) p[c] -= med;
+  }
+  auto pw = [&](std::size_t r, std::size_t c) { return power_[r * cols + c]; };
+
+  // 2. Ridge.
+  const auto onset_col = static_cast<std::size_t>(std::ceil(onset_s / dt));
+  const auto edge_cols = static_cast<std::size_t>(std::ceil(4.0 * kernel_s / dt));
+  const std::size_t last_col = cols > edge_cols ? cols - edge_cols : 0;
+  if (onset_col + 3 > last_col)
+    return finish(win.end == WindowEnd::complete ? ImpactStatus::too_short : ImpactStatus::window_cut);
+  std::size_t r0 = 0, c0 = onset_col;
+  for (std::size_t r = 0; r < rows; ++r)
+    for (std::size_t c = onset_col; c < last_col; ++c)
+      if (pw(r, c) > pw(r0, c0)) {
+        r0 = r;
+        c0 = c;
+      }
+  bool ridge_lost = r0 == 0 || r0 + 1 == rows;
+  double prof[3] = {0.0, 0.0, 0.0};  // ridge energy in rows r0-1, r0, r0+1
+  {
+    std::size_t r = r0;
+    for (std::size_t c = c0; c < last_col; ++c) {
+      if (c > c0) {
+        std::size_t best = r;
+        if (r > 0 && pw(r - 1, c) > pw(best, c)) best = r - 1;
+        if (r + 1 < rows && pw(r + 1, c) > pw(best, c)) best = r + 1;
+        r = best;
+      }
+      if (pw(r, c) < 100.0 * row_noise(rows_hz_[r])) break;  // 20 dB: the strong part of the decay
+      if (r == 0 || r + 1 == rows || std::abs(std::log(rows_hz_[r] / rows_hz_[r0])) > 1.0 / eta0_)
+        ridge_lost = true;
+      if (r0 > 0 && r0 + 1 < rows)
+        for (std::size_t k = 0; k < 3; ++k) prof[k] += pw(r0 - 1 + k, c);
+    }
+  }
+  double f_ridge = rows_hz_[r0];
+  if (r0 > 0 && r0 + 1 < rows && prof[0] > 0 && prof[1] > 0 && prof[2] > 0) {
+    // Parabola through (ln f, ln energy): the Gaussian filter makes ln energy nearly quadratic in ln f.
+    const double y0 = std::log(prof[0]), y1 = std::log(prof[1]), y2 = std::log(prof[2]);
+    const double denom = y0 - 2.0 * y1 + y2;
+    const double off = denom < 0 ? std::clamp(0.5 * (y0 - y2) / denom, -0.5, 0.5) : 0.0;
+    const double step = std::log(off < 0 ? rows_hz_[r0] / rows_hz_[r0 - 1] : rows_hz_[r0 + 1] / rows_hz_[r0]);
+    f_ridge = rows_hz_[r0] * std::exp(off * step);
+  }
+
+  // 3. Phase slope at the ridge frequency, then the envelope row at f_d.
+  const double band_lo = rows_hz_.front(), band_hi = rows_hz_.back();
+  dsp::EnvelopeOptions env;
+  env.onset_s = onset_s;
+  dsp::EnvelopeRow row{w, dt, f_ridge, eta0_, row_noise(f_ridge)};
+  row.phase_reference_hz = f_ridge;
+  cwt_->row(f_ridge, w);
+  dsp::EnvelopeWindow ew = dsp::choose_window(row, env);
+  double f_sd = NAN;
+  double f_d = dsp::phase_slope_frequency(row, ew, f_sd);
+  if (!std::isfinite(f_d) || f_d < band_lo || f_d > band_hi) {
+    if (std::isfinite(f_d)) ridge_lost = true;
+    f_d = f_ridge;
+    f_sd = NAN;
+  }
+  row.f_row_hz = f_d;
+  row.phase_reference_hz = f_d;
+  row.noise_power = row_noise(f_d);
+  cwt_->row(f_d, w);
+  ew = dsp::choose_window(row, env);
+  dsp::DampingEstimate two = dsp::estimate_two_point(row, ew, f_d);
+  dsp::DampingEstimate rls = dsp::estimate_ridge_ls(row, ew, f_d);
+  two.f_sd_hz = rls.f_sd_hz = f_sd;
+  const double snr_db = rls.snr_db;
+
+  // 4. Maximum likelihood on the decay segment.
+  dsp::DampingEstimate ml;
+  ml.method = dsp::DampingMethod::ml;
+  ml.status = dsp::EstimateStatus::too_short;
+  const std::size_t seg0 = o + n_ml_margin_;
+  if (method_ == dsp::DampingMethod::ml && seg0 < n) {
+    std::size_t pick = fitter_len_.size();
+    for (std::size_t k = 0; k < fitter_len_.size(); ++k)
+      if (fitter_len_[k] <= n - seg0) pick = k;
+    if (pick < fitter_len_.size()) {
+      const double zeta0 = (std::isfinite(rls.zeta) && rls.zeta > 1e-4 && rls.zeta < 0.5) ? rls.zeta : 0.02;
+      const dsp::ModeGuess guess{f_d, zeta0};
+      dsp::MlFitOptions mo;
+      mo.f_lo_hz = f_d * (1.0 - ml_band_rel_);
+      mo.f_hi_hz = std::min(f_d * (1.0 + ml_band_rel_), 0.4999 * fs_);
+      const dsp::MlFitResult fit =
+          fitters_[pick]->fit(x.subspan(seg0, fitter_len_[pick]), std::span<const dsp::ModeGuess>(&guess, 1), mo);
+      if (!fit.modes.empty()) {
+        ml = fit.modes.front();
+        ml.window_start_s += static_cast<double>(seg0) / fs_;
+        ml.window_end_s += static_cast<double>(seg0) / fs_;
+        ml.snr_db = snr_db;
+      }
+    }
+  }
+  // 5. Cross-check (same rule as identify_modes): 4 combined standard uncertainties, with a 1 %
+  // (zeta) / 1e-4 (f) allowance for the envelope method's small deterministic biases.
+  if (ml.status == dsp::EstimateStatus::ok && rls.status == dsp::EstimateStatus::ok) {
+    const double z_zeta = std::abs(std::log(ml.zeta / rls.zeta)) /
+                          std::hypot(std::hypot(ml.zeta_sd / ml.zeta, rls.zeta_sd / rls.zeta), 0.01);
+    const double z_f = std::isfinite(rls.f_sd_hz)
+                           ? std::abs(ml.f_hz - rls.f_hz) / std::hypot(std::hypot(ml.f_sd_hz, rls.f_sd_hz), 1e-4 * ml.f_hz)
+                           : 0.0;
+    if (!(z_zeta <= 4.0) || !(z_f <= 4.0)) ml.status = dsp::EstimateStatus::inconsistent;
+  }
+  const dsp::DampingEstimate& sel =
+      method_ == dsp::DampingMethod::ml ? ml : (method_ == dsp::DampingMethod::ridge_ls ? rls : two);
+
+  ev.f_hz = sel.f_hz;
+  ev.f_sd_hz = std::isfinite(sel.f_sd_hz) ? sel.f_sd_hz : f_sd;
+  ev.zeta = sel.zeta;
+  ev.zeta_ci95_lo = sel.zeta_ci95_lo;
+  ev.zeta_ci95_hi = sel.zeta_ci95_hi;
+  ev.snr_db = snr_db;
+  ev.amplitude = sel.amplitude;
+  ev.window_s = sel.window_end_s - sel.window_start_s;
+
+  // Status. A window cut by the next impact matters only when the cut removes a noticeable part of
+  // the decay: more than 5 % of its energy, exp(-2 sigma T) > 0.05 (T = usable time after the onset).
+  ImpactStatus computed = from_estimate(sel.status);
+  if (win.end == WindowEnd::next_impact) {
+    const double t_avail = static_cast<double>(n - o) / fs_;
+    const double z = std::isfinite(sel.zeta) ? sel.zeta : rls.zeta;
+    const double sigma = std::isfinite(z) && z > 0 && z < 1 ? z * kTwoPi * f_d / std::sqrt(1.0 - z * z) : NAN;
+    if (!(std::exp(-2.0 * sigma * t_avail) <= 0.05)) computed = ImpactStatus::window_cut;
+  }
+  if (computed != ImpactStatus::window_cut) {
+    if (ridge_lost) computed = ImpactStatus::ridge_lost;
+    else if (!(snr_db >= min_snr_db_) || ew.status == dsp::EstimateStatus::low_snr) computed = ImpactStatus::low_snr;
+  }
+  return finish(computed);
+}
+
+}  // namespace ridgewatch::pipeline

@@ -1,0 +1,263 @@
+// StreamProcessor: glue between the sample stream, the impact detector, the impact analyzer and the
+// trend monitor. Every sample goes through the same per-sample path, so the events do not depend on
+// how the stream is cut into blocks (bit-identical for any block size; tested).
+//
+// An impact's window [onset - pretrigger, onset + window) is analysed as soon as it is final: when
+// the next onset is known and cuts it, or when enough samples past its end have arrived that no
+// later trigger can be refined to an onset inside it (lookback + confirmation + spike delay,
+// about 6 ms at the defaults). That is the event latency after the end of the decay window.
+#include "core/pipeline/stream_processor.hpp"
+
+#include <algorithm>
+#include <array>
+#include <bit>
+#include <cmath>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+
+#include "core/pipeline/impact_analyzer.hpp"
+#include "core/pipeline/impact_detector.hpp"
+
+namespace ridgewatch::pipeline {
+
+namespace {
+
+std::string num(double v) {
+  std::ostringstream s;
+  s << v;
+  return s.str();
+}
+
+[[noreturn]] void fail(const std::string& field, const std::string& rule, double got) {
+  throw std::invalid_argument(field + ": " + rule + " (got " + num(got) + ")");
+}
+
+void require(bool ok, const char* field, const std::string& rule, double got) {
+  if (!ok) fail(field, rule, got);
+}
+
+}  // namespace
+
+void validate(const PipelineConfig& c) {
+  const double fs = c.sample_rate_hz;
+  require(std::isfinite(fs) && fs > 0, "sample_rate_hz", "must be > 0", fs);
+  const double nyq = fs / 2;
+  const ImpactDetectorConfig& d = c.detector;
+  require(std::isfinite(d.band_lo_hz) && d.band_lo_hz > 0, "detector.band_lo_hz", "must be > 0", d.band_lo_hz);
+  require(std::isfinite(d.band_hi_hz) && d.band_hi_hz > d.band_lo_hz, "detector.band_hi_hz",
+          "must be > detector.band_lo_hz = " + num(d.band_lo_hz), d.band_hi_hz);
+  require(d.band_hi_hz < nyq, "detector.band_hi_hz", "must be < sample_rate_hz / 2 = " + num(nyq), d.band_hi_hz);
+  require(std::isfinite(d.sta_s) && d.sta_s * fs >= 2, "detector.sta_s",
+          "must be >= 2 samples (" + num(2 / fs) + " s)", d.sta_s);
+  require(std::isfinite(d.lta_s) && d.lta_s > d.sta_s && d.lta_s <= 3600, "detector.lta_s",
+          "must be > detector.sta_s = " + num(d.sta_s) + " and <= 3600", d.lta_s);
+  require(std::isfinite(d.trigger_ratio) && d.trigger_ratio > 1, "detector.trigger_ratio", "must be > 1", d.trigger_ratio);
+  require(std::isfinite(d.holdoff_s) && d.holdoff_s >= 0 && d.holdoff_s <= 60, "detector.holdoff_s",
+          "must be in [0, 60]", d.holdoff_s);
+  require(std::isfinite(d.spike_mad) && d.spike_mad > 0, "detector.spike_mad", "must be > 0", d.spike_mad);
+  const ImpactAnalyzerConfig& a = c.analyzer;
+  require(std::isfinite(a.f_expected_hz) && a.f_expected_hz > 0, "analyzer.f_expected_hz", "must be > 0", a.f_expected_hz);
+  require(std::isfinite(a.band_rel) && a.band_rel > 0 && a.band_rel < 0.9, "analyzer.band_rel",
+          "must be in (0, 0.9)", a.band_rel);
+  require(a.f_expected_hz * (1 + a.band_rel) < nyq, "analyzer.f_expected_hz",
+          "f_expected_hz * (1 + band_rel) must be < sample_rate_hz / 2 = " + num(nyq), a.f_expected_hz);
+  require(std::isfinite(a.eta0) && a.eta0 >= 5 && a.eta0 <= 50, "analyzer.eta0", "must be in [5, 50]", a.eta0);
+  require(std::isfinite(a.pretrigger_s) && a.pretrigger_s >= 0 && a.pretrigger_s <= 1, "analyzer.pretrigger_s",
+          "must be in [0, 1]", a.pretrigger_s);
+  require(std::isfinite(a.window_s) && a.window_s > 0, "analyzer.window_s", "must be > 0", a.window_s);
+  require(a.window_s <= 10, "analyzer.window_s", "must be <= 10", a.window_s);
+  // The decay window must hold the CWT's edge skips (4 kernel widths each side) plus the minimum fit
+  // window (2 widths): 10 kernel widths s = eta0 / (2 pi f) at the expected frequency.
+  const double min_window = 10.0 * a.eta0 / (2.0 * 3.141592653589793 * a.f_expected_hz);
+  require(a.window_s >= min_window, "analyzer.window_s",
+          "must be >= 10 Morlet kernel widths at f_expected_hz (" + num(min_window) + " s)", a.window_s);
+  require(a.window_s * fs >= 80, "analyzer.window_s", "must span >= 80 samples", a.window_s);
+  require(std::isfinite(a.min_snr_db), "analyzer.min_snr_db", "must be finite", a.min_snr_db);
+  require(std::isfinite(a.clip_level) && a.clip_level > 0, "analyzer.clip_level", "must be > 0", a.clip_level);
+  require(std::isfinite(a.ml_band_rel) && a.ml_band_rel > 0 && a.ml_band_rel <= a.band_rel, "analyzer.ml_band_rel",
+          "must be in (0, analyzer.band_rel = " + num(a.band_rel) + "]", a.ml_band_rel);
+  try {
+    trend::validate(c.trend);
+  } catch (const std::invalid_argument& e) {
+    const std::string what = e.what();
+    if (what.rfind("trend.", 0) == 0) throw;
+    throw std::invalid_argument("trend." + what);
+  }
+}
+
+struct StreamProcessor::Impl {
+  static constexpr std::size_t kMaxPending = 32;
+  static constexpr std::size_t kNoiseHistory = 8;
+
+  PipelineConfig cfg;
+  double fs;
+  ImpactAnalyzer analyzer;
+  ImpactDetector detector;
+  trend::TrendMonitor trend_monitor;
+
+  std::vector<float> raw;  // raw samples by absolute index & mask
+  std::uint64_t mask = 0;
+  std::vector<double> window_buf;
+  bool started = false, flushed = false;
+  std::uint64_t seg_start = 0, next = 0;
+  std::size_t wait_after = 0;    // samples past a window's end before it is final
+  std::size_t cut_guard = 0;     // window ends this far before the next onset
+  std::size_t noise_span = 0;    // pre-trigger samples used for the noise estimate
+  std::size_t noise_guard = 0;   // ... ending this far before the onset
+
+  struct Pending {
+    std::uint64_t onset;
+    double noise_var;
+  };
+  std::array<Pending, kMaxPending> pending{};
+  std::size_t p_head = 0, p_count = 0;
+  std::array<double, kNoiseHistory> noise_hist{};
+  std::size_t n_head = 0, n_count = 0;
+
+  std::uint64_t samples = 0, impacts = 0, gaps = 0;
+
+  explicit Impl(const PipelineConfig& c)
+      : cfg((validate(c), c)),
+        fs(c.sample_rate_hz),
+        analyzer(c.analyzer, c.sample_rate_hz),
+        detector(c.detector, c.sample_rate_hz,
+                 analyzer.max_samples() + static_cast<std::size_t>(std::ceil(0.002 * c.sample_rate_hz))),
+        trend_monitor(c.trend) {
+    wait_after = detector.lookback_samples() + detector.decision_delay_samples() + 1;
+    cut_guard = static_cast<std::size_t>(std::ceil(0.0005 * fs));
+    noise_guard = static_cast<std::size_t>(std::ceil(0.00025 * fs));
+    noise_span = std::max(analyzer.pretrigger_samples(), static_cast<std::size_t>(std::ceil(0.001 * fs)));
+    const std::uint64_t ring = std::bit_ceil(2 * (analyzer.max_samples() + wait_after + noise_span + 64));
+    raw.assign(ring, 0.0f);
+    mask = ring - 1;
+    window_buf.assign(analyzer.max_samples(), 0.0);
+  }
+
+  Pending& pending_at(std::size_t k) { return pending[(p_head + k) % kMaxPending]; }
+
+  // In-band power between impacts: median of the last 8 pre-trigger estimates (each ~4 degrees of
+  // freedom at 2 ms and a 1 kHz band, so the median is good to ~20 %), converted to the white-noise
+  // variance of the samples with the band-pass's noise gain.
+  double noise_for(std::uint64_t onset) {
+    const std::uint64_t end = onset > noise_guard ? onset - noise_guard : 0;
+    const std::uint64_t begin = end > noise_span ? end - noise_span : 0;
+    double p = detector.band_power(std::max(begin, seg_start), end);
+    if (!std::isfinite(p)) p = detector.lta();
+    if (std::isfinite(p)) {
+      noise_hist[n_head] = p;
+      n_head = (n_head + 1) % kNoiseHistory;
+      n_count = std::min(n_count + 1, kNoiseHistory);
+    }
+    if (n_count == 0) return NAN;
+    std::array<double, kNoiseHistory> tmp = noise_hist;
+    const std::size_t mid = n_count / 2;
+    std::nth_element(tmp.begin(), tmp.begin() + static_cast<std::ptrdiff_t>(mid), tmp.begin() + static_cast<std::ptrdiff_t>(n_count));
+    return tmp[mid] / detector.band_noise_gain();
+  }
+
+  void take_onsets(std::vector<ImpactEvent>& events) {
+    while (detector.has_onset()) {
+      const std::uint64_t o = detector.pop_onset();
+      ++impacts;
+      if (p_count == kMaxPending) analyze_front(events);  // cannot happen with sane configs
+      pending_at(p_count) = {o, noise_for(o)};
+      ++p_count;
+    }
+  }
+
+  bool front_ready() {
+    if (p_count == 0) return false;
+    const std::uint64_t o = pending_at(0).onset;
+    const std::uint64_t end = o + analyzer.window_samples();
+    if (p_count > 1 && pending_at(1).onset < end + cut_guard) return true;  // cut: end known
+    return next >= end + wait_after;
+  }
+
+  void analyze_front(std::vector<ImpactEvent>& events) {
+    const Pending p = pending_at(0);
+    p_head = (p_head + 1) % kMaxPending;
+    --p_count;
+    const std::uint64_t o = p.onset;
+    const std::uint64_t w0 = std::max(o > analyzer.pretrigger_samples() ? o - analyzer.pretrigger_samples() : 0, seg_start);
+    std::uint64_t end = o + analyzer.window_samples();
+    WindowEnd kind = WindowEnd::complete;
+    if (p_count > 0 && pending_at(0).onset < end + cut_guard) {
+      const std::uint64_t nx = pending_at(0).onset;
+      end = std::max(nx > cut_guard ? nx - cut_guard : 0, o);
+      kind = WindowEnd::next_impact;
+    }
+    if (end > next) {
+      end = next;
+      kind = WindowEnd::gap;
+    }
+    const std::size_t n = static_cast<std::size_t>(end - w0);
+    for (std::size_t k = 0; k < n; ++k) window_buf[k] = static_cast<double>(raw[(w0 + k) & mask]);
+    ImpactWindow win;
+    win.samples = std::span<const double>(window_buf.data(), n);
+    win.onset_offset = static_cast<std::size_t>(o - w0);
+    win.end = kind;
+    win.noise_var = p.noise_var;
+    win.spike = detector.spike_in(w0, end);
+    win.onset_index = o;
+    ImpactEvent ev = analyzer.analyze(win);
+    ev.alarm = trend_monitor.update(ev);
+    events.push_back(ev);
+  }
+
+  void end_segment(std::vector<ImpactEvent>& events) {
+    detector.finish();
+    take_onsets(events);
+    while (p_count > 0) analyze_front(events);
+  }
+
+  void start_segment(std::uint64_t first) {
+    seg_start = next = first;
+    detector.restart(first);
+  }
+};
+
+StreamProcessor::StreamProcessor(const PipelineConfig& config) : impl_(std::make_unique<Impl>(config)) {}
+StreamProcessor::~StreamProcessor() = default;
+
+void StreamProcessor::process(std::span<const float> block, std::uint64_t first_index, std::vector<ImpactEvent>& events) {
+  Impl& im = *impl_;
+  if (!im.started || im.flushed) {
+    if (im.started && first_index < im.next)
+      throw std::invalid_argument("StreamProcessor::process: first_index went backwards");
+    im.started = true;
+    im.flushed = false;
+    im.start_segment(first_index);
+  } else if (first_index < im.next) {
+    throw std::invalid_argument("StreamProcessor::process: first_index " + std::to_string(first_index) +
+                                " went backwards (expected " + std::to_string(im.next) + ")");
+  } else if (first_index > im.next) {
+    im.end_segment(events);
+    ++im.gaps;
+    im.start_segment(first_index);
+  }
+  for (const float x : block) {
+    im.raw[im.next & im.mask] = x;
+    im.detector.push(x);
+    ++im.next;
+    if (im.detector.has_onset()) im.take_onsets(events);
+    while (im.front_ready()) im.analyze_front(events);
+  }
+  im.samples += block.size();
+}
+
+void StreamProcessor::flush(std::vector<ImpactEvent>& events) {
+  Impl& im = *impl_;
+  if (!im.started || im.flushed) return;
+  im.end_segment(events);
+  im.flushed = true;
+}
+
+std::uint64_t StreamProcessor::samples_seen() const { return impl_->samples; }
+std::uint64_t StreamProcessor::impacts_detected() const { return impl_->impacts; }
+std::uint64_t StreamProcessor::spikes_seen() const { return impl_->detector.spikes_seen(); }
+std::uint64_t StreamProcessor::gaps_seen() const { return impl_->gaps; }
+trend::TrendMonitor& StreamProcessor::trend() { return impl_->trend_monitor; }
+const PipelineConfig& StreamProcessor::config() const { return impl_->cfg; }
+
+}  // namespace ridgewatch::pipeline
