@@ -422,15 +422,16 @@ TEST(TrendLevels, AlarmOnDecrease) {
     EXPECT_GE(delay, 0) << "seed " << seed;
     EXPECT_LT(delay, 10) << "seed " << seed;
   }
-  // The lower CUSUM moves and the upper does not.
+  // The lower CUSUM moves and the upper does not; at x = -1.5 (EWMA -3.97 EWMA sd, inside the alert
+  // limit) only the lower CUSUM can raise the alert.
   TrendConfig c = known_baseline();
   c.alarm_on_decrease = true;
   TrendMonitor m(c);
   AlarmState s;
-  for (int i = 0; i < 20; ++i) s = m.update(event(zeta_at(-3.0)));
+  for (int i = 0; i < 40; ++i) s = m.update(event(zeta_at(-1.5)));
   EXPECT_EQ(s.cusum_up, 0.0);
   EXPECT_GT(s.cusum_down, 8.0);
-  EXPECT_TRUE(alarming(s.level));
+  EXPECT_EQ(s.level, AlarmLevel::alert);
 }
 
 // ---------------------------------------------------------------------------------------------------
