@@ -15,10 +15,10 @@
 //  3. Damped frequency from the phase slope of W (unbiased, README "Frequency"; rows are decimated, so
 //     the phase is unwrapped around the row frequency). Envelope row at f_d; the foundation's window
 //     choice, two-point (Eq. 17-19) and ridge least-squares estimates.
-//  4. ml (default): SpectralModeFitter with one mode in f_d (1 +- ml_band_rel) on the segment from
+//  4. ml (default): SpectralModeFitter with one mode in f_d (1 +- ml_band_rel, default 12 %) on the segment from
 //     onset + 0.5 ms (the 0.15 ms force pulse and the onset's uncertainty are over) to the end of the
 //     usable window, started from the ridge-LS estimate. The in-band fit ignores the mesh lines at
-//     550/1100 Hz of the paper rig (outside 854 Hz +- 15 %) and hum. Segment lengths are quantised to
+//     550/1100 Hz of the paper rig (outside 860 Hz +- 12 %) and hum. Segment lengths are quantised to
 //     eighths of the full window so the FFT plans can be made in the constructor.
 //  5. Cross-check of ml against ridge-ls (as in `ridgewatch modes`): more than 4 combined standard
 //     uncertainties apart (plus a 1 % / 1e-4 allowance) -> inconsistent.
