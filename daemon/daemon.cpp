@@ -36,10 +36,9 @@ std::string iso8601_utc(std::chrono::system_clock::time_point tp) {
   const std::time_t t = std::chrono::system_clock::to_time_t(secs);
   std::tm tm{};
   gmtime_r(&t, &tm);
-  char buf[40];
-  std::snprintf(buf, sizeof buf, "%04d-%02d-%02dT%02d:%02d:%02d.%03dZ", tm.tm_year + 1900, tm.tm_mon + 1, tm.tm_mday,
-                tm.tm_hour, tm.tm_min, tm.tm_sec, static_cast<int>(ms));
-  return buf;
+  char buf[32];
+  std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%S", &tm);
+  return fmt::format("{}.{:03}Z", buf, ms);
 }
 
 }  // namespace
@@ -275,7 +274,8 @@ int Daemon::run() {
       d.notifier.stopping();
       spdlog::info("stop requested: finishing the impact in progress");
     }
-    if (stopping && d.processor->samples_seen() >= stop_at_sample) d.acq_stop.store(true);
+    if (stopping && d.processor->samples_seen() >= stop_at_sample && !d.acq_stop.exchange(true))
+      interrupt_source(*d.source);
     if (g_reload.exchange(false)) d.reload();
     if (g_latch_reset.exchange(false)) {
       d.processor->trend().reset_latch();
@@ -315,6 +315,7 @@ int Daemon::run() {
   }
 
   d.acq_stop.store(true);
+  interrupt_source(*d.source);
   if (d.acquisition.joinable()) d.acquisition.join();
   d.processor->flush(events);
   d.emit(events);
