@@ -61,16 +61,19 @@ void walk(RidgewatchConfig& c, V& v) {
       v.method("method", a.method);
       v.num("min_snr_db", a.min_snr_db);
       v.num("clip_level", a.clip_level);
+      v.num("ml_band_rel", a.ml_band_rel);
     });
     v.map("trend", [&] {
       v.count("baseline_events", t.baseline_events, 1, 1 << 20);
       v.nullable("baseline_zeta", t.baseline_zeta);
       v.nullable("baseline_ln_sd", t.baseline_ln_sd);
+      v.num("min_baseline_ln_sd", t.min_baseline_ln_sd);
       v.num("ewma_lambda", t.ewma_lambda);
       v.num("alert_sigma", t.alert_sigma);
       v.num("danger_sigma", t.danger_sigma);
       v.num("cusum_k", t.cusum_k);
       v.num("cusum_h", t.cusum_h);
+      v.unbounded("clip_sigma", t.clip_sigma);
       v.num("hysteresis_sigma", t.hysteresis_sigma);
       v.count("confirm_k", t.confirm_k, 1, 64);
       v.count("confirm_n", t.confirm_n, 1, 64);
@@ -138,6 +141,17 @@ class Parser {
       }
     });
   }
+  /// null means "no limit" (+infinity).
+  void unbounded(const char* key, double& v) {
+    visit(key, [&](const YAML::Node& p, const std::string& path) {
+      const YAML::Node n = p[key];
+      if (n && n.IsNull()) {
+        v = INFINITY;
+      } else {
+        r_.read(p, path, key, v);
+      }
+    });
+  }
   void method(const char* key, dsp::DampingMethod& m) {
     visit(key, [&](const YAML::Node& p, const std::string& path) {
       std::string text;
@@ -191,6 +205,7 @@ class Printer {
   }
   void num(const char* key, double v) { line(key, YamlReader::format(v)); }
   void nullable(const char* key, double v) { line(key, std::isfinite(v) ? YamlReader::format(v) : "null"); }
+  void unbounded(const char* key, double v) { line(key, std::isfinite(v) ? YamlReader::format(v) : "null"); }
   void flag(const char* key, bool v) { line(key, v ? "true" : "false"); }
   void text(const char* key, const std::string& v) {
     YAML::Emitter e;

@@ -262,20 +262,29 @@ int Daemon::run() {
   auto last_ping = Clock::now();
   std::uint64_t samples_at_last_ping = 0;
   bool stopping = false;
-  std::uint64_t stop_at_sample = 0;
+  Clock::time_point stop_deadline{};
+  std::uint64_t impacts_at_stop = 0;
 
   for (;;) {
     if (!stopping && g_stop.exchange(false)) {
-      // Let the impact in progress complete: keep reading one analysis window more (live data keeps
-      // coming for that long), then stop the acquisition.
+      // Let the impact in progress complete: keep acquiring until every detected impact has its
+      // event, but no longer than one analysis window plus a second (a stalled input must not hold
+      // the shutdown up), then stop the acquisition.
       stopping = true;
-      const double extra_s = d.cfg.pipeline.analyzer.pretrigger_s + d.cfg.pipeline.analyzer.window_s + 0.005;
-      stop_at_sample = d.processor->samples_seen() + static_cast<std::uint64_t>(std::ceil(extra_s * d.fs));
+      impacts_at_stop = d.processor->impacts_detected();
+      const double extra_s = d.cfg.pipeline.analyzer.pretrigger_s + d.cfg.pipeline.analyzer.window_s + 1.0;
+      stop_deadline = Clock::now() + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(extra_s));
       d.notifier.stopping();
       spdlog::info("stop requested: finishing the impact in progress");
     }
-    if (stopping && d.processor->samples_seen() >= stop_at_sample && !d.acq_stop.exchange(true))
-      interrupt_source(*d.source);
+    if (stopping && !d.acq_stop.load()) {
+      // Impacts detected before the stop request still waiting for their decay window.
+      const bool pending = impacts_at_stop > d.stats.events;
+      if (!pending || Clock::now() >= stop_deadline) {
+        d.acq_stop.store(true);
+        interrupt_source(*d.source);
+      }
+    }
     if (g_reload.exchange(false)) d.reload();
     if (g_latch_reset.exchange(false)) {
       d.processor->trend().reset_latch();

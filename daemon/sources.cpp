@@ -49,6 +49,7 @@ std::uint64_t take_source_gap(drivers::SampleSource& source) {
 
 void interrupt_source(drivers::SampleSource& source) {
   if (auto* alsa = dynamic_cast<drivers::AlsaSource*>(&source)) alsa->request_stop();
+  if (auto* paced = dynamic_cast<drivers::PacedSource*>(&source)) paced->request_stop();
 }
 
 }  // namespace ridgewatch::daemon

@@ -55,10 +55,20 @@ std::size_t PacedSource::read(std::span<double> out) {
   samples_delivered_ += filled;
   if (filled > 0 && config_.speed > 0.0) {
     const double due_s = static_cast<double>(samples_delivered_) / (info_.sample_rate_hz * config_.speed);
-    std::this_thread::sleep_until(start_ + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
-                                               std::chrono::duration<double>(due_s)));
+    const auto due = start_ + std::chrono::duration_cast<std::chrono::steady_clock::duration>(
+                                  std::chrono::duration<double>(due_s));
+    std::unique_lock<std::mutex> lock(stop_mutex_);
+    stop_cv_.wait_until(lock, due, [this] { return stop_requested_; });
   }
   return filled;
+}
+
+void PacedSource::request_stop() {
+  {
+    std::lock_guard<std::mutex> lock(stop_mutex_);
+    stop_requested_ = true;
+  }
+  stop_cv_.notify_all();
 }
 
 std::unique_ptr<PacedSource> open_paced_replay(const std::string& path, const ReplayOptions& options,

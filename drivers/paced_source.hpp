@@ -15,6 +15,9 @@
 // source that yields no samples in a whole pass ends the stream (read() returns 0) instead of spinning.
 #pragma once
 
+#include <condition_variable>
+#include <mutex>
+
 #include <chrono>
 #include <cstddef>
 #include <cstdint>
@@ -47,6 +50,10 @@ class PacedSource : public SampleSource {
   /// Fills `out` as far as the source allows (across loop boundaries), then sleeps until the block is due.
   std::size_t read(std::span<double> out) override;
 
+  /// From any thread: a read() waiting for its block's due time returns at once (with the block),
+  /// and later reads no longer wait. For prompt shutdown of a slow or stalled replay.
+  void request_stop();
+
   std::uint64_t samples_delivered() const { return samples_delivered_; }
   /// Times the source was reopened at its end.
   std::uint64_t loops_completed() const { return loops_completed_; }
@@ -62,6 +69,9 @@ class PacedSource : public SampleSource {
   std::uint64_t loops_completed_ = 0;
   std::uint64_t samples_this_pass_ = 0;
   bool ended_ = false;
+  std::mutex stop_mutex_;
+  std::condition_variable stop_cv_;
+  bool stop_requested_ = false;
 };
 
 /// Convenience: a paced (optionally looping) replay of a file, reopened with open_replay() per pass.

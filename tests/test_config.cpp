@@ -11,13 +11,6 @@ using namespace ridgewatch::cli;
 
 namespace {
 
-std::string read_file(const std::string& path) {
-  std::ifstream f(path);
-  std::ostringstream s;
-  s << f.rdbuf();
-  return s.str();
-}
-
 // Expects parse_config to fail with a message containing every needle.
 void expect_error(const std::string& yaml, std::initializer_list<std::string> needles) {
   try {
