@@ -71,6 +71,11 @@ struct Daemon::Impl {
   std::atomic<std::uint64_t> acq_samples{0};
   std::string acq_error;  // written by the acquisition thread before acq_done (release)
 
+  GpioLines gpio;
+  std::vector<drivers::TachoEdge> edges;
+  std::int64_t last_pulse_ns = 0;
+  std::uint64_t relay_errors_seen = 0;
+
   SystemdNotifier notifier;
   LogLimiter limiter{60.0};
   std::chrono::system_clock::time_point wall_at_start;
@@ -142,6 +147,7 @@ struct Daemon::Impl {
       if (csv_out && !csv_out->write_line(event_csv_row(e, source_name)))
         warn_limited("csv-write", csv_out->last_error());
       if (!cfg.output.capture_dir.empty()) capture(e);
+      drive_relays(e.alarm.level);
       if (e.alarm.transition()) {
         const auto level = e.alarm.level;
         const std::string msg = fmt::format("alarm {} -> {} at t = {:.3f} s (sample {}), zeta = {:.5f}",
@@ -152,6 +158,31 @@ struct Daemon::Impl {
         else
           spdlog::info("{}", msg);
       }
+    }
+  }
+
+  // Fail-safe relays: energised = healthy, so a dead daemon or a cut wire reads as an alarm.
+  void drive_relays(pipeline::AlarmLevel level) {
+    using pipeline::AlarmLevel;
+    if (gpio.alert) gpio.alert->set_healthy(level != AlarmLevel::alert && level != AlarmLevel::danger);
+    if (gpio.danger) gpio.danger->set_healthy(level != AlarmLevel::danger);
+    const std::uint64_t errors = (gpio.alert ? gpio.alert->errors() : 0) + (gpio.danger ? gpio.danger->errors() : 0);
+    if (errors > relay_errors_seen) {
+      relay_errors_seen = errors;
+      warn_limited("relay", "GPIO relay output failed (" + std::to_string(errors) + " errors so far)");
+    }
+  }
+
+  void poll_tacho() {
+    if (!gpio.tacho) return;
+    edges.clear();
+    gpio.tacho->wait_edges(std::chrono::nanoseconds(0), edges);
+    for (const auto& edge : edges) {
+      if (!edge.rising) continue;
+      ++stats.tacho_pulses;
+      if (last_pulse_ns > 0 && edge.timestamp_ns > last_pulse_ns)
+        stats.shaft_hz = 1e9 / static_cast<double>(edge.timestamp_ns - last_pulse_ns);
+      last_pulse_ns = edge.timestamp_ns;
     }
   }
 
@@ -207,10 +238,12 @@ struct Daemon::Impl {
   }
 
   std::string status_text() const {
-    return fmt::format("{} samples, {} impacts ({} ok), alarm {}, {} overruns, {} write failures", stats.samples,
-                       stats.events, stats.events_ok,
-                       processor ? pipeline::to_string(processor->trend().state().level) : "?", stats.overruns,
-                       stats.events_failed_to_write);
+    std::string text = fmt::format("{} samples, {} impacts ({} ok), alarm {}, {} overruns, {} write failures",
+                                   stats.samples, stats.events, stats.events_ok,
+                                   processor ? pipeline::to_string(processor->trend().state().level) : "?",
+                                   stats.overruns, stats.events_failed_to_write);
+    if (gpio.tacho) text += fmt::format(", shaft {:.1f} rpm", 60.0 * stats.shaft_hz);
+    return text;
   }
 };
 
@@ -243,6 +276,15 @@ int Daemon::run() {
   d.source_name = !d.cfg.output.source_name.empty() ? d.cfg.output.source_name : info.name;
   d.make_processor();  // UsageError propagates (exit 2): the pipeline does not fit this sample rate
   d.open_outputs();
+  if (d.options.gpio_factory || d.cfg.gpio.enabled) {
+    try {
+      d.gpio = d.options.gpio_factory ? d.options.gpio_factory(d.cfg.gpio) : open_gpio(d.cfg.gpio);
+    } catch (const drivers::GpioError& e) {
+      spdlog::critical("{}", e.what());
+      return cli::kExitBadInput;
+    }
+    d.drive_relays(pipeline::AlarmLevel::learning);  // healthy until the trend says otherwise
+  }
 
   // Ring: at least ring_buffer_s of samples, plus history for capture look-back.
   const double history_s = d.cfg.pipeline.analyzer.pretrigger_s + d.cfg.pipeline.analyzer.window_s + 0.5;
@@ -303,6 +345,7 @@ int Daemon::run() {
       std::this_thread::sleep_for(std::chrono::milliseconds(2));
     }
 
+    d.poll_tacho();
     const auto now = Clock::now();
     // Watchdog: ping only while samples keep arriving, so a stalled input gets the service restarted.
     if (d.notifier.watchdog_enabled() && now - last_ping >= d.notifier.watchdog_interval() / 3) {
@@ -341,6 +384,22 @@ int Daemon::run() {
     return cli::kExitBadInput;
   }
   return cli::kExitOk;
+}
+
+GpioLines open_gpio(const cli::GpioConfig& config) {
+  GpioLines lines;
+  auto line = [&](int offset) {
+    drivers::GpioLineConfig c;
+    c.chip = config.chip;
+    c.offset = static_cast<unsigned>(offset);
+    c.active_low = config.active_low;
+    return c;
+  };
+  if (config.alert_line >= 0) lines.alert = std::make_unique<drivers::GpiodRelayOutput>(line(config.alert_line));
+  if (config.danger_line >= 0) lines.danger = std::make_unique<drivers::GpiodRelayOutput>(line(config.danger_line));
+  if (config.tacho_line >= 0)
+    lines.tacho = std::make_unique<drivers::GpiodTachoInput>(line(config.tacho_line), drivers::TachoEdges::rising);
+  return lines;
 }
 
 }  // namespace ridgewatch::daemon

@@ -14,21 +14,36 @@
 #include <string>
 
 #include "cli/config_yaml.hpp"
+#include "drivers/gpio.hpp"
 #include "drivers/sample_source.hpp"
 
 namespace ridgewatch::daemon {
+
+/// The GPIO lines the daemon drives (any may be null).
+struct GpioLines {
+  std::unique_ptr<drivers::RelayOutput> alert;   ///< energised while the alarm is below alert
+  std::unique_ptr<drivers::RelayOutput> danger;  ///< energised while the alarm is below danger
+  std::unique_ptr<drivers::TachoInput> tacho;    ///< once-per-revolution pulses
+};
+
+/// Opens the configured libgpiod lines (throws drivers::GpioError naming the chip and line).
+GpioLines open_gpio(const cli::GpioConfig& config);
 
 struct DaemonOptions {
   cli::RidgewatchConfig config;
   std::string config_path;  ///< re-read on SIGHUP; empty: reload keeps the current configuration
   /// Command-line overrides re-applied after every reload (so --replay/--events survive SIGHUP).
   std::function<void(cli::RidgewatchConfig&)> overrides;
+  /// Replaces open_gpio (tests pass fake lines). Called once at start when set or gpio.enabled.
+  std::function<GpioLines(const cli::GpioConfig&)> gpio_factory;
 };
 
 /// Counters for the status line, tests and the exit summary.
 struct DaemonStats {
   std::uint64_t samples = 0, events = 0, events_ok = 0, overruns = 0, gaps = 0, spikes = 0;
   std::uint64_t events_failed_to_write = 0, source_errors = 0, reloads = 0, reloads_rejected = 0;
+  std::uint64_t tacho_pulses = 0;
+  double shaft_hz = 0.0;  ///< from the last two tacho pulses (0 without tacho)
 };
 
 class Daemon {

@@ -115,7 +115,11 @@ int run(const std::vector<std::string>& argv) {
 
   setup_logging(config.logging.level);
   install_signal_handlers();
-  Daemon daemon({config, config_path.value_or(""), overrides});
+  ridgewatch::daemon::DaemonOptions options;
+  options.config = config;
+  options.config_path = config_path.value_or("");
+  options.overrides = overrides;
+  Daemon daemon(std::move(options));
   return daemon.run();
 }
 
