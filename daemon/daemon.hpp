@@ -8,6 +8,7 @@
 #pragma once
 
 #include <atomic>
+#include <cmath>
 #include <cstdint>
 #include <functional>
 #include <memory>
@@ -43,6 +44,10 @@ struct DaemonStats {
   std::uint64_t samples = 0, events = 0, events_ok = 0, overruns = 0, gaps = 0, spikes = 0;
   std::uint64_t events_failed_to_write = 0, source_errors = 0, reloads = 0, reloads_rejected = 0;
   std::uint64_t tacho_pulses = 0;
+  /// Paced/live input only: time from the end of an impact's decay window (when its last sample was
+  /// due from the source) to its event being written, ms. NaN when not measured.
+  double latency_max_ms = NAN;
+  double latency_mean_ms = NAN;
   double shaft_hz = 0.0;  ///< from the last two tacho pulses (0 without tacho)
 };
 
