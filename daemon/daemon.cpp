@@ -139,7 +139,11 @@ struct Daemon::Impl {
         if (const std::uint64_t lost = take_source_gap(*source); lost > 0) ring->skip(lost);
         if (n == 0) break;
         for (std::size_t i = 0; i < n; ++i) out[i] = static_cast<float>(in[i]);
-        ring->write(std::span<const float>(out.data(), n));  // a full ring drops and counts (overrun)
+        // A replayed file can wait for the consumer (lossless, however fast the replay); live capture
+        // cannot hold the device up, so there a full ring drops and counts (overrun, a gap downstream).
+        while (!live && ring->writable_items() < n && !acq_stop.load(std::memory_order_relaxed))
+          std::this_thread::sleep_for(std::chrono::microseconds(200));
+        ring->write(std::span<const float>(out.data(), n));
         acq_samples.fetch_add(n, std::memory_order_relaxed);
       }
     } catch (const std::exception& e) {

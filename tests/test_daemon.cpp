@@ -112,6 +112,20 @@ TEST(Daemon, ReplayAsFastAsPossibleMatchesAnalyze) {
   EXPECT_TRUE(slurp(dir / "out").empty());  // events went to the file, nothing on stdout
 }
 
+// A replay as fast as possible through a ring far shorter than the file must not drop samples: the
+// replay waits for the consumer (only live capture may overrun).
+TEST(Daemon, FastReplayThroughATinyRingLosesNoSamples) {
+  const auto dir = temp_dir("tiny");
+  { std::ofstream(dir / "c.yaml") << "source:\n  ring_buffer_s: 0.05\n"; }
+  ChildProcess d({RIDGEWATCHD_PATH, "--config", (dir / "c.yaml").string(), "--replay", kReplay, "--speed", "max",
+                  "--events", (dir / "ev.jsonl").string()},
+                 {}, (dir / "out").string(), (dir / "err").string());
+  ASSERT_EQ(d.wait(60s), 0) << slurp(dir / "err");
+  EXPECT_NE(slurp(dir / "err").find("51200 samples"), std::string::npos) << slurp(dir / "err");
+  EXPECT_NE(slurp(dir / "err").find(" 0 overruns"), std::string::npos) << slurp(dir / "err");
+  EXPECT_EQ(read_jsonl(dir / "ev.jsonl").size(), analyze_events(kReplay).size());
+}
+
 // SIGTERM in the middle of a real-time replay: exit 0 promptly, every line complete JSON, and the
 // events equal the first events of the full analysis (none lost, the one in progress finished).
 TEST(Daemon, SigtermFinishesTheEventInProgressAndLosesNothing) {
