@@ -25,8 +25,8 @@ struct AlsaSourceConfig {
   std::size_t channels = 1;
   std::size_t channel = 0;
   std::string format = "S32_LE";  ///< S16_LE, S32_LE or FLOAT_LE
-  std::size_t period_frames = 1024;
-  std::size_t buffer_frames = 8192;
+  std::size_t period_frames = 256;   ///< 5 ms at 51.2 kHz: the period adds to the event latency
+  std::size_t buffer_frames = 4096;
   double retry_min_s = 0.5;       ///< device loss: first retry after this, doubling
   double retry_max_s = 30.0;      ///< up to this
 };
