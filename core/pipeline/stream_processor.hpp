@@ -3,8 +3,16 @@
 // pre-trigger -> band CWT, ridge near the expected natural frequency, damping estimate -> status ->
 // trend/alarm state. Pure computation: no I/O, threads or clock; sample indices are the clock.
 //
-// Real-time contract: buffers and FFT plans are made in the constructor; process() does not allocate
-// except to append to the caller's event vector (reserve it).
+// Real-time contract: buffers and FFT plans are made in the constructor. The per-sample path (spike
+// test, trigger band, STA/LTA, onset) and the per-impact CWT do not allocate; process() appends to the
+// caller's event vector (reserve it). Known exception: the foundation's per-impact estimators allocate
+// small work arrays (phase_slope_frequency's phase buffer, SpectralModeFitter's Levenberg-Marquardt
+// and Eigen temporaries), a few kB per impact, i.e. ~25 times a second; nothing is planned there.
+//
+// Design and numbers: core/pipeline/impact_detector.hpp (detection, onset) and impact_analyzer.hpp
+// (CWT, ridge, estimators, status). Event latency: an impact is analysed once its window
+// [onset - pretrigger_s, onset + window_s) is final, i.e. when the next onset cuts it or 13.9 ms (the
+// onset look-back plus the refinement delay at the default detector settings) after its end.
 #pragma once
 
 #include <cstddef>
