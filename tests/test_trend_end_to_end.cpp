@@ -3,7 +3,7 @@
 // whose damping steps or drifts (effect damping_drift); `ridgewatch analyze` runs the streaming
 // pipeline with its default configuration and prints JSON Lines; the test reads the `alarm` field.
 // Impacts are counted from the simulator's truth file, so a missed detection cannot shorten the delay.
-// Runtime: a few seconds (about 3 minutes of simulated signal in all).
+// Runtime: ~4 s optimised, ~2 min under ASan+UBSan (about 2 minutes of simulated signal in all).
 #include <gtest/gtest.h>
 #include <unistd.h>
 
@@ -83,7 +83,7 @@ TEST_F(TrendEndToEnd, DampingStepAlarmsWithinTenImpactsAndNotBefore) {
     double noise;
     int seed;
   };
-  for (const Case c : {Case{0.01, 1}, Case{0.01, 2}, Case{0.01, 3}, Case{0.05, 4}}) {
+  for (const Case c : {Case{0.01, 1}, Case{0.01, 2}, Case{0.05, 3}}) {
     SCOPED_TRACE("noise " + std::to_string(c.noise) + " seed " + std::to_string(c.seed));
     const std::string name = "step" + std::to_string(c.seed);
     const json truth = simulate(name, effect, 16.0, c.noise, c.seed);
@@ -112,14 +112,15 @@ TEST_F(TrendEndToEnd, DampingStepAlarmsWithinTenImpactsAndNotBefore) {
   }
 }
 
-// Slow drift from t = 0: zeta(t) = 0.024 + rate t, +30 % after 120 s (3000 impacts). The baseline is
-// learned while the damping already drifts (the first 10 s: up to +2.5 %), as it would be on a rig.
+// Slow drift from t = 0: zeta(t) = 0.024 + rate t, +30 % after 60 s (1500 impacts; 0.2 % per 10
+// impacts). The baseline is learned while the damping already drifts (the first 10 s: up to +5 %), as it
+// would be on a rig; the rise is reported from the start of the recording.
 TEST_F(TrendEndToEnd, SlowDriftAlarmsBeforeThirtyPercent) {
-  constexpr double kDuration = 120.0;
+  constexpr double kDuration = 60.0;
   const double rate = 0.30 * kZeta0 / kDuration;
-  const json truth = simulate("drift", "damping_drift:rate_per_s=" + std::to_string(rate), kDuration, 0.01, 5);
+  simulate("drift", "damping_drift:rate_per_s=" + std::to_string(rate), kDuration, 0.01, 5);
   const std::vector<json> events = analyze("drift");
-  ASSERT_GE(events.size(), 2900u);
+  ASSERT_GE(events.size(), 1450u);
   double alarm_t = -1.0;
   for (const json& e : events) {
     if (alarming(e)) {
@@ -130,7 +131,7 @@ TEST_F(TrendEndToEnd, SlowDriftAlarmsBeforeThirtyPercent) {
   ASSERT_GT(alarm_t, 0.0) << "no alarm during a +30 % drift";
   const double rise = rate * alarm_t / kZeta0;
   EXPECT_LT(rise, 0.30);
-  std::printf("[trend e2e] drift +30%% over 120 s, noise 0.01: alarm at t = %.2f s, zeta risen %.1f %%\n", alarm_t,
+  std::printf("[trend e2e] drift +30%% over 60 s, noise 0.01: alarm at t = %.2f s, zeta risen %.1f %%\n", alarm_t,
               100.0 * rise);
 }
 
