@@ -9,6 +9,7 @@
 
 #include "cli/args.hpp"
 #include "cli/commands.hpp"
+#include "cli/replay_flags.hpp"
 #include "cli/config_yaml.hpp"
 #include "cli/event_json.hpp"
 #include "core/pipeline/stream_processor.hpp"
@@ -18,13 +19,8 @@ namespace ridgewatch::cli {
 
 int run_analyze(const std::vector<std::string>& argv, std::ostream& out, std::ostream& err) {
   const Args args(argv, {"--config", "--channel", "--rate"}, {});
-  if (args.positional().size() != 1)
-    throw UsageError("expects exactly one FILE (got " + std::to_string(args.positional().size()) + ")");
-  const std::string& path = args.positional()[0];
-
-  drivers::ReplayOptions ropt;
-  ropt.channel = static_cast<std::size_t>(args.integer("--channel", 0, 0, 1023));
-  ropt.csv_rate_hz = args.optional_number("--rate", drivers::kMinReplayRateHz, drivers::kMaxReplayRateHz);
+  const std::string& path = single_file(args);
+  const drivers::ReplayOptions ropt = replay_options(args);
 
   pipeline::PipelineConfig cfg;
   std::string cfg_name = "defaults";

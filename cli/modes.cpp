@@ -7,6 +7,7 @@
 
 #include "cli/args.hpp"
 #include "cli/commands.hpp"
+#include "cli/replay_flags.hpp"
 #include "core/dsp/modes.hpp"
 #include "drivers/replay_file.hpp"
 
@@ -41,13 +42,8 @@ int run_modes(const std::vector<std::string>& argv, std::ostream& out, std::ostr
                   {"--channel", "--rate", "--fmin", "--fmax", "--max-modes", "--method", "--eta0",
                    "--start", "--min-snr-db", "--voices"},
                   {"--all-methods"});
-  if (args.positional().size() != 1)
-    throw UsageError("expects exactly one FILE (got " + std::to_string(args.positional().size()) + ")");
-  const std::string& path = args.positional()[0];
-
-  drivers::ReplayOptions ropt;
-  ropt.channel = static_cast<std::size_t>(args.integer("--channel", 0, 0, 1023));
-  ropt.csv_rate_hz = args.optional_number("--rate", drivers::kMinReplayRateHz, drivers::kMaxReplayRateHz);
+  const std::string& path = single_file(args);
+  const drivers::ReplayOptions ropt = replay_options(args);
 
   dsp::ModeSearchOptions opt;
   if (const auto m = args.value("--method"); m && !dsp::parse_damping_method(*m, opt.method))

@@ -18,6 +18,7 @@
 // and the reference uses h_a = h - h_neg. `ReferenceKernel::gaussian` keeps the raw kernel; one test
 // shows that at eta0 = 5 the raw kernel disagrees with the class by far more than the analytic one does.
 
+#include "allocation_counter.hpp"
 #include "core/dsp/morlet_cwt.hpp"
 
 #include <gtest/gtest.h>
@@ -38,31 +39,8 @@
 #include <string>
 #include <vector>
 
-// ---- allocation counter: replaces the global operator new so that tests can assert that the hot path
-// (transform on a sized Scalogram, load, row) does not allocate.
-namespace {
-std::atomic<long> g_allocations{0};
-}  // namespace
-
-void* operator new(std::size_t size) {
-  g_allocations.fetch_add(1, std::memory_order_relaxed);
-  if (void* p = std::malloc(size == 0 ? 1 : size)) return p;
-  throw std::bad_alloc();
-}
-void* operator new[](std::size_t size) {
-  g_allocations.fetch_add(1, std::memory_order_relaxed);
-  if (void* p = std::malloc(size == 0 ? 1 : size)) return p;
-  throw std::bad_alloc();
-}
-// The replacement new above gets its memory from malloc, so free is the matching release; GCC's
-// -Wmismatched-new-delete cannot see that pairing once these are inlined.
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wmismatched-new-delete"
-void operator delete(void* p) noexcept { std::free(p); }
-void operator delete[](void* p) noexcept { std::free(p); }
-void operator delete(void* p, std::size_t) noexcept { std::free(p); }
-void operator delete[](void* p, std::size_t) noexcept { std::free(p); }
-#pragma GCC diagnostic pop
+// The allocation counter (allocation_counter.hpp) lets tests assert that the hot path (transform on a
+// sized Scalogram, load, row) does not allocate.
 
 namespace ridgewatch::dsp {
 namespace {
@@ -740,12 +718,12 @@ void check_no_allocation(bool band_limited) {
   cwt.transform(x, w);
   const auto* data = w.data.data();
   std::vector<std::complex<Real>> row(cwt.columns());
-  const long before = g_allocations.load();
+  const long before = ridgewatch::test::allocations();
   cwt.transform(x, w);
   cwt.transform(std::span<const Real>(x).first(900), w);  // shorter signal: shrinks in place
   cwt.load(x);
   cwt.row(700.0, row);
-  const long after = g_allocations.load();
+  const long after = ridgewatch::test::allocations();
   EXPECT_EQ(after - before, 0) << "allocations on the hot path";
   EXPECT_EQ(w.data.data(), data) << "Scalogram storage was reallocated";
 }
@@ -759,12 +737,12 @@ TEST(MorletCwtRealTime, NoAllocationPerCall) {
 
 // The allocation counter itself must see allocations (otherwise the test above could not fail).
 TEST(MorletCwtRealTime, AllocationCounterWorks) {
-  const long before = g_allocations.load();
+  const long before = ridgewatch::test::allocations();
   // A direct call of the allocation function: unlike a new-expression, the optimiser may not elide
   // it (new-expressions may be merged or removed in optimised builds since C++14).
   void* p = ::operator new(64);
   ::operator delete(p);
-  EXPECT_GE(g_allocations.load() - before, 1);
+  EXPECT_GE(ridgewatch::test::allocations() - before, 1);
 }
 
 }  // namespace

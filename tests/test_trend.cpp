@@ -19,33 +19,11 @@
 #include <string>
 #include <vector>
 
+#include "allocation_counter.hpp"
 #include "core/trend/trend_monitor.hpp"
 
-// ---- allocation counter: replaces the global operator new so that a test can assert that update()
-// does not allocate (real-time contract in trend_monitor.hpp).
-namespace {
-std::atomic<long> g_allocations{0};
-}  // namespace
-
-void* operator new(std::size_t size) {
-  g_allocations.fetch_add(1, std::memory_order_relaxed);
-  if (void* p = std::malloc(size == 0 ? 1 : size)) return p;
-  throw std::bad_alloc();
-}
-void* operator new[](std::size_t size) {
-  g_allocations.fetch_add(1, std::memory_order_relaxed);
-  if (void* p = std::malloc(size == 0 ? 1 : size)) return p;
-  throw std::bad_alloc();
-}
-// The replacement new above gets its memory from malloc, so free is the matching release; GCC's
-// -Wmismatched-new-delete cannot see that pairing once these are inlined.
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wmismatched-new-delete"
-void operator delete(void* p) noexcept { std::free(p); }
-void operator delete[](void* p) noexcept { std::free(p); }
-void operator delete(void* p, std::size_t) noexcept { std::free(p); }
-void operator delete[](void* p, std::size_t) noexcept { std::free(p); }
-#pragma GCC diagnostic pop
+// allocation_counter.hpp lets a test assert that update() does not allocate (real-time contract in
+// trend_monitor.hpp).
 
 namespace ridgewatch::trend {
 namespace {
@@ -238,9 +216,9 @@ TEST(TrendEvents, UpdateDoesNotAllocate) {
   TrendConfig c;  // learned baseline: exercises the learning path (median/MAD) too
   TrendMonitor m(c);
   Gauss g(1);
-  const long before = g_allocations.load();
+  const long before = ridgewatch::test::allocations();
   for (int i = 0; i < 2000; ++i) m.update(event(kZeta0 * std::exp(0.05 * g() + (i > 1000 ? 0.3 : 0.0))));
-  const long after = g_allocations.load();
+  const long after = ridgewatch::test::allocations();
   EXPECT_EQ(after - before, 0);
   EXPECT_TRUE(alarming(m.state().level));  // the loop did reach the alarm code
 }
