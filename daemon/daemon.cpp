@@ -213,9 +213,13 @@ struct Daemon::Impl {
     const double win_s = cfg.pipeline.analyzer.window_s;
     const auto pre = static_cast<std::uint64_t>(std::ceil(pre_s * fs));
     const std::uint64_t first = e.sample_index > pre ? e.sample_index - pre : 0;
-    std::vector<float> window(static_cast<std::size_t>(std::ceil((pre_s + win_s) * fs)));
-    // The window has been consumed by the processor already; it is still in the ring's history.
-    const auto status = ring->copy_lookback(first, window);
+    // The window has been consumed by the processor already and is still in the ring's history; a
+    // window cut by the end of the stream or a gap is captured as far as it goes.
+    auto length = static_cast<std::uint64_t>(std::ceil((pre_s + win_s) * fs));
+    const std::uint64_t consumed = ring->read_stream_index();
+    if (first + length > consumed) length = consumed > first ? consumed - first : 0;
+    std::vector<float> window(static_cast<std::size_t>(length));
+    const auto status = length > 0 ? ring->copy_lookback(first, window) : rt::LookbackStatus::not_yet_consumed;
     if (status != rt::LookbackStatus::ok) {
       warn_limited("capture", "capture of the impact at sample " + std::to_string(e.sample_index) +
                                   " skipped: its samples are no longer in the ring buffer");
