@@ -236,6 +236,28 @@ TEST(Daemon, SighupWithBadConfigKeepsRunningWithTheOldOne) {
   EXPECT_GE(read_jsonl(dir / "ev.jsonl").size(), 10u);  // events kept coming through both reloads
 }
 
+// Log rotation: after the event log is renamed away, SIGHUP makes the daemon write to a new file at
+// the configured path; together the two files hold every event exactly once.
+TEST(Daemon, SighupReopensTheEventLogForRotation) {
+  const auto dir = temp_dir("rotate");
+  ChildProcess d({RIDGEWATCHD_PATH, "--replay", kReplay, "--speed", "2", "--events", (dir / "ev.jsonl").string()},
+                 {}, (dir / "out").string(), (dir / "err").string());
+  std::this_thread::sleep_for(400ms);
+  fs::rename(dir / "ev.jsonl", dir / "ev.jsonl.1");
+  d.signal(SIGHUP);
+  ASSERT_EQ(d.wait(30s), 0) << slurp(dir / "err");
+  const auto old_part = read_jsonl(dir / "ev.jsonl.1");
+  const auto new_part = read_jsonl(dir / "ev.jsonl");
+  EXPECT_FALSE(old_part.empty());
+  EXPECT_FALSE(new_part.empty());
+  const auto reference = analyze_events(kReplay);
+  ASSERT_EQ(old_part.size() + new_part.size(), reference.size());
+  for (std::size_t i = 0; i < reference.size(); ++i) {
+    const auto& got = i < old_part.size() ? old_part[i] : new_part[i - old_part.size()];
+    EXPECT_EQ(got["sample_index"], reference[i]["sample_index"]) << i;
+  }
+}
+
 TEST(Daemon, UnwritableEventLogIsCountedAndProcessingContinues) {
   const auto dir = temp_dir("nowrite");
   ChildProcess d({RIDGEWATCHD_PATH, "--replay", kReplay, "--speed", "max", "--events", "/nonexistent-dir/ev.jsonl",
