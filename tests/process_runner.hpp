@@ -2,6 +2,7 @@
 // for tests that must signal a running daemon.
 #pragma once
 
+#include <fcntl.h>
 #include <signal.h>
 #include <spawn.h>
 #include <sys/wait.h>
