@@ -46,17 +46,20 @@ void check_channel(const std::string& path, std::size_t channel, std::size_t cha
   }
 }
 
-/// Throws if a sample is NaN or infinite, naming its 0-based index in the stream and its time.
-void check_finite(const std::string& path, std::span<const double> samples, std::uint64_t first_index,
-                  double rate_hz) {
+/// Index of the first NaN or infinite sample (samples.size() if none) and the message naming its
+/// 0-based index in the stream and its time.
+std::size_t find_non_finite(const std::string& path, std::span<const double> samples, std::uint64_t first_index,
+                            double rate_hz, std::string& message) {
   for (std::size_t i = 0; i < samples.size(); ++i) {
     const double x = samples[i];
     if (std::isfinite(x)) continue;
     const std::uint64_t index = first_index + i;
     const char* what = std::isnan(x) ? "NaN" : (x > 0 ? "+Inf" : "-Inf");
-    throw InputError(path + ": sample " + std::to_string(index) + " is " + what +
-                     " (t = " + num(static_cast<double>(index) / rate_hz) + " s)");
+    message = path + ": sample " + std::to_string(index) + " is " + what + " (t = " +
+              num(static_cast<double>(index) / rate_hz) + " s)";
+    return i;
   }
+  return samples.size();
 }
 
 bool has_text_extension(const std::string& path) {
@@ -137,6 +140,8 @@ class SndfileSource final : public SampleSource {
   const SourceInfo& info() const override { return info_; }
 
   std::size_t read(std::span<double> out) override {
+    // A bad sample found by an earlier call: the good samples before it were delivered then.
+    if (!pending_error_.empty()) throw InputError(pending_error_);
     std::size_t delivered = 0;
     while (delivered < out.size() && !finished_) {
       const std::size_t want = std::min(out.size() - delivered, kBlockFrames);
@@ -151,7 +156,19 @@ class SndfileSource final : public SampleSource {
         }
       }
       const auto got_frames = static_cast<std::size_t>(std::max<sf_count_t>(got, 0));
-      check_finite(info_.name, dest.first(got_frames), frames_read_, info_.sample_rate_hz);
+      std::string bad;
+      const std::size_t good = find_non_finite(info_.name, dest.first(got_frames), frames_read_, info_.sample_rate_hz, bad);
+      if (good < got_frames) {
+        // Deliver the samples before the bad one (a consumer streaming block by block then sees the
+        // same data whatever its block size) and report the error on this call if there are none,
+        // else on the next one.
+        delivered += good;
+        frames_read_ += good;
+        finished_ = true;
+        if (delivered == 0) throw InputError(bad);
+        pending_error_ = bad;
+        return delivered;
+      }
       frames_read_ += got_frames;
       delivered += got_frames;
       if (got_frames < want) {
@@ -182,6 +199,7 @@ class SndfileSource final : public SampleSource {
   std::vector<double> interleaved_;  ///< one block of all channels (allocated once)
   std::uint64_t frames_read_ = 0;
   bool finished_ = false;
+  std::string pending_error_;  ///< NaN/Inf found after some good samples of the same call
 };
 
 /// Samples already in memory (parsed CSV).
