@@ -1,0 +1,125 @@
+// Per-impact simulation of the gear-pair model for model-vs-measurement fitting (issue 5).
+//
+// The full simulator (core/model/simulator.hpp) integrates a whole record; fitting needs the response
+// of one impact window many times per optimiser step. This is the same physics in windowed form:
+// Eq. A1 on the dynamic deflection x = q - q_s (m_red ẍ = W + F_imp - g [c_z δ + d_z δ̇] - resisting
+// forces, δ = q_s + x + e, c_z = c0 + Δc(θ_z) from Eq. B1) with the catalogue effects as plug-ins
+// (core/model/effect.hpp), fixed-step RK4 and event location on switching effects (Coulomb friction,
+// contact loss) with the stick test, exactly as the simulator does.
+//
+// Window conventions (what makes the fit identifiable; DESIGN.md "Model-discrepancy loop"):
+//  * the impact is a half-sine force pulse of the rig's duration starting at `onset_s` with peak
+//    `force_n` (the two per-impact nuisances);
+//  * mesh-periodic terms run on the mesh angle referenced to the impact: θ_z(t) = φ_z + 2π f_z
+//    (t - onset), φ_z shared by all impacts (the cracked tooth meets at the same shaft angle each
+//    revolution, so the mesh angle at the impact repeats), f_z = z1 / (local revolution period);
+//  * the state at the window start is the linear steady-state response to the mesh-periodic forcing
+//    (transmission error and stiffness variation times the static deflection; present before the
+//    impact, it does not decay) plus the free transient left by the previous impact, propagated
+//    through the gap by the closed-form free decay (zero when dry friction has stopped it).
+#pragma once
+
+#include <complex>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "core/model/effect.hpp"
+#include "core/model/rig_parameters.hpp"
+
+namespace ridgewatch::diagnosis {
+
+/// How a free physics parameter is mapped from the optimiser's unbounded u to its value.
+enum class Transform {
+  kLog,      ///< v = exp(u), clamped to [lo, hi] (lo > 0): positive, scale-free
+  kBounded,  ///< v = lo + (hi - lo) / (1 + exp(-u)): both bounds, smooth
+  kAngle,    ///< v = u (an angle; reported wrapped to (-π, π])
+};
+
+double to_value(Transform t, double lo, double hi, double u);
+double to_u(Transform t, double lo, double hi, double value);
+
+struct FreeParameter {
+  std::string key;  ///< effect parameter key
+  Transform transform = Transform::kLog;
+  double lo = 0.0, hi = 0.0;  ///< within the catalogue's bounds
+  double start = 0.0;         ///< value the optimiser starts from
+};
+
+/// A diagnosable effect: which of its catalogue parameters are fitted and which are held fixed.
+struct CandidateSpec {
+  std::string effect;
+  std::vector<FreeParameter> free;
+  model::EffectValues fixed;  ///< the remaining parameters (at their null value or a fixed reference)
+  bool mesh_periodic = false; ///< uses the shared mesh phase φ_z
+};
+
+/// The dynamics effects `diagnose` can try, in catalogue order. Sensor effects (noise, hum, spikes)
+/// and kinematics (speed_variation: the local revolution period is measured per impact) are not
+/// candidates.
+const std::vector<CandidateSpec>& candidate_table();
+const CandidateSpec* find_candidate(const std::string& name);
+
+/// Physical values of the model's global parameters.
+struct PhysicsValues {
+  double c0_n_per_m = 0.0;
+  double zeta = 0.0;
+  double mesh_phase_rad = 0.0;  ///< φ_z (used only by mesh-periodic effects)
+  std::vector<std::pair<std::string, model::EffectValues>> effects;  ///< complete value sets
+};
+
+/// Dynamic state of the window model (mesh mode x, q̇ and the auxiliary mode p, ṗ).
+struct ModelState {
+  double x = 0.0, v = 0.0, p = 0.0, pd = 0.0;
+};
+
+class WindowSimulator {
+ public:
+  /// Throws std::invalid_argument if an effect rejects its values.
+  WindowSimulator(const model::RigParameters& rig, const PhysicsValues& physics, double sample_rate_hz);
+  ~WindowSimulator();
+  WindowSimulator(const WindowSimulator&) = delete;
+  WindowSimulator& operator=(const WindowSimulator&) = delete;
+
+  struct Impact {
+    double onset_s = 0.0;    ///< absolute time of the pulse start
+    double force_n = 0.0;    ///< peak of the half-sine pulse
+    double mesh_hz = 0.0;    ///< f_z for this impact
+    double polarity = 1.0;   ///< sensor sign (+1 / -1)
+  };
+  struct End {
+    ModelState transient;  ///< state at the window end minus the steady state
+    bool stopped = false;  ///< dry friction holds the mesh at rest
+  };
+
+  /// Simulates samples [first, first + n) (absolute sample indices) into out[0..n). `carry` is the
+  /// free transient of the previous impact at the window start (zero if none).
+  void simulate(std::uint64_t first, std::size_t n, const Impact& impact, const ModelState& carry,
+                double* out, End& end) const;
+
+  /// Closed-form free decay of a transient over dt seconds (both modes linear, Eq. A2 with constant ζ).
+  ModelState propagate(const ModelState& s, double dt_s, double t_abs_s) const;
+  bool has_dry_friction() const { return stick_limit_n_ > 0.0; }
+  double damping_ratio_at(double t_abs_s) const;
+
+ private:
+  struct Steady {
+    std::complex<double> x[4];  ///< phasors of x_ss for mesh orders 1..4
+  };
+  Steady steady_state(double mesh_hz) const;
+
+  model::RigParameters rig_;
+  PhysicsValues physics_;
+  double fs_ = 0.0;
+  int substeps_ = 1;
+  double m_red_ = 0.0, crit_ = 0.0, static_force_ = 0.0, q_s_ = 0.0, sens_ = 0.0, pulse_s_ = 0.0;
+  std::vector<std::unique_ptr<model::Effect>> effects_;
+  std::vector<std::size_t> switching_;
+  double stick_limit_n_ = 0.0;
+  bool has_aux_ = false;
+  double aux_w2_ = 0.0, aux_2zw_ = 0.0, aux_part_ = 0.0, aux_w_ = 0.0, aux_zeta_ = 0.0;
+  bool mesh_forcing_ = false;
+  std::complex<double> e_ph_[4], de_ph_[4], dc_ph_[4];  // phasors of e(θ), de/dθ, Δc(θ)
+};
+
+}  // namespace ridgewatch::diagnosis

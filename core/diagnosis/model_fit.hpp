@@ -1,0 +1,116 @@
+// Output-error fit of the gear-pair model (Eq. A1/A2, B1 and catalogue effects) to the measured free
+// responses of a recording, with global physics shared by all impacts and per-impact nuisances, and
+// judged on held-out impacts with the physics frozen.
+//
+// Parameters (optimiser space u, bounded by reparametrisation, see Transform):
+//   globals  ln(c0 / c0_nominal), ln ζ, the free parameters of each effect in the model
+//            (core/diagnosis/impact_model.hpp candidate_table), and the mesh phase φ_z when a
+//            mesh-periodic effect is present;
+//   per impact  ln(F / F_nominal) (pulse peak force) and the onset shift (samples) from the detector.
+// Residual rows: (y - model) / σ over each window's unmasked samples, σ = the noise floor between
+// impacts. Optimiser: Eigen's Levenberg–Marquardt (unsupported/Eigen/NonLinearOptimization) with a
+// forward-difference Jacobian that exploits the structure (a nuisance moves only its own window and
+// the next one's carried tail). Uncertainties: s² (JᵀJ)⁻¹ at the optimum, s² = RSS / (n - p).
+//
+// Folds: windows alternate training (even index) / held-out (odd). Training fit: globals and the
+// training nuisances on training rows (held-out nuisances stay at their initial values; they reach the
+// training rows only through the small carried tail). Held-out: globals frozen, all nuisances refitted
+// on all rows, the error reported on held-out rows only.
+#pragma once
+
+#include <Eigen/Dense>
+#include <span>
+#include <string>
+#include <vector>
+
+#include "core/diagnosis/impact_model.hpp"
+#include "core/diagnosis/segmentation.hpp"
+#include "core/model/rig_parameters.hpp"
+
+namespace ridgewatch::diagnosis {
+
+struct GlobalParameter {
+  std::string name;    ///< "c0_n_per_m", "zeta", "mesh_phase_rad" or "<effect>.<key>"
+  std::string effect;  ///< empty for c0, ζ, φ_z
+  std::string key;
+  Transform transform = Transform::kLog;
+  double lo = 0.0, hi = 0.0;
+};
+
+struct FitParams {
+  Eigen::VectorXd u;               ///< globals in optimiser space (layout order)
+  std::vector<double> ln_force;    ///< per window: ln(F / F_nominal)
+  std::vector<double> shift;       ///< per window: onset - detected onset, samples
+  double polarity = 1.0;
+};
+
+struct ParameterEstimate {
+  std::string name;
+  double value = 0.0;
+  double sd = 0.0;               ///< delta-method standard deviation of the value
+  double ci95_lo = 0.0, ci95_hi = 0.0;  ///< u ± 1.96 sd_u mapped back (asymmetric for ln parameters)
+  bool at_bound = false;         ///< within 1e-3 of the transform's range of a bound
+};
+
+struct FitResult {
+  std::vector<std::string> effects;
+  std::vector<GlobalParameter> layout;
+  FitParams params;
+  std::vector<ParameterEstimate> estimates;   ///< one per global parameter, layout order
+  Eigen::MatrixXd correlation;                ///< of the global parameters
+  bool converged = false;
+  // Training fold.
+  double train_chi2 = 0.0;   ///< Σ r², r in σ units
+  double train_n = 0.0;      ///< residual samples used
+  int free_parameters = 0;   ///< globals + training nuisances
+  double bic = 0.0;          ///< n ln(RSS/n) + k ln n on the training rows
+  // Held-out fold (physics frozen).
+  double heldout_excess = 0.0;     ///< held-out residual power / noise power - 1
+  double heldout_n = 0.0;
+  double fit_percent = 0.0;        ///< 100 (1 - ||y - model|| / ||y - mean y||) on held-out rows
+  std::vector<double> impact_power;  ///< per window: residual power / σ² (all windows, after held-out refit)
+  std::vector<std::vector<double>> model;  ///< per window, the model output (after held-out refit)
+};
+
+class ModelFitter {
+ public:
+  /// `y` must outlive the fitter. Throws std::invalid_argument if there are fewer than 4 windows.
+  ModelFitter(std::span<const double> y, const Segmentation& seg, const model::RigParameters& rig);
+
+  std::vector<GlobalParameter> layout(const std::vector<std::string>& effects) const;
+
+  /// Fits a model. `warm` (optional): a previous result whose global values (by name) and nuisances
+  /// start this fit. `start_overrides`: starting values by global name (e.g. a second mode's
+  /// frequency from the residual spectrum). Throws std::invalid_argument for an unknown effect.
+  FitResult fit(const std::vector<std::string>& effects, const FitResult* warm = nullptr,
+                const std::vector<std::pair<std::string, double>>& start_overrides = {}) const;
+
+  bool is_heldout(std::size_t window) const { return window % 2 == 1; }
+  const Segmentation& segmentation() const { return seg_; }
+  std::span<const double> data() const { return y_; }
+  const model::RigParameters& rig() const { return rig_; }
+
+  /// Physical values for a parameter vector (the simulator's input).
+  PhysicsValues physics(const std::vector<GlobalParameter>& layout, const Eigen::VectorXd& u) const;
+
+  struct Chain {
+    std::vector<std::vector<double>> out;
+    std::vector<WindowSimulator::End> end;
+  };
+  /// Model output of every window for the given parameters.
+  Chain evaluate(const std::vector<GlobalParameter>& layout, const FitParams& p) const;
+
+ private:
+  friend struct FitProblem;
+  WindowSimulator::Impact impact(std::size_t w, const FitParams& p) const;
+  ModelState carry(const WindowSimulator& sim, std::size_t w, const Chain& c) const;
+  void simulate_window(const WindowSimulator& sim, std::size_t w, const FitParams& p, const Chain& c,
+                       std::vector<double>& out, WindowSimulator::End& end) const;
+  void initialise_nuisances(FitParams& p, const std::vector<GlobalParameter>& layout) const;
+
+  std::span<const double> y_;
+  Segmentation seg_;
+  model::RigParameters rig_;
+};
+
+}  // namespace ridgewatch::diagnosis
