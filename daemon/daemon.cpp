@@ -134,8 +134,16 @@ struct Daemon::Impl {
     std::vector<double> in(block);
     std::vector<float> out(block);
     try {
+      const std::uint64_t limit = options.max_samples;
+      std::uint64_t acquired = 0;
       while (!acq_stop.load(std::memory_order_relaxed)) {
-        const std::size_t n = source->read(in);
+        std::span<double> want(in);
+        if (limit > 0) {
+          if (acquired >= limit) break;
+          want = want.first(static_cast<std::size_t>(std::min<std::uint64_t>(in.size(), limit - acquired)));
+        }
+        const std::size_t n = source->read(want);
+        acquired += n;
         if (const std::uint64_t lost = take_source_gap(*source); lost > 0) ring->skip(lost);
         if (n == 0) break;
         for (std::size_t i = 0; i < n; ++i) out[i] = static_cast<float>(in[i]);
@@ -291,7 +299,7 @@ const DaemonStats& Daemon::stats() const { return impl_->stats; }
 int Daemon::run() {
   Impl& d = *impl_;
   try {
-    d.source = open_source(d.cfg.source);
+    d.source = d.options.source_factory ? d.options.source_factory(d.cfg.source) : open_source(d.cfg.source);
   } catch (const drivers::InputError& e) {
     spdlog::critical("{}", e.what());
     return cli::kExitBadInput;
@@ -366,6 +374,12 @@ int Daemon::run() {
       d.stats.samples += r.count;
       d.emit(events);
       events.clear();
+      if (const std::uint64_t gaps = d.processor->gaps_seen(); gaps > d.stats.gaps) {
+        // Samples lost upstream (ALSA xrun or device loss, ring overrun): the stream index jumped.
+        d.stats.gaps = gaps;
+        d.warn_limited("gap", fmt::format("gap in the input before sample {} ({} gaps so far, {} overrun samples)",
+                                          r.first_stream_index, gaps, d.ring->overrun_items()));
+      }
     } else if (d.acq_done.load(std::memory_order_acquire)) {
       if (d.ring->read_regions().size() == 0) break;  // input ended (or stop) and everything is processed
     } else {

@@ -37,6 +37,11 @@ struct DaemonOptions {
   std::function<void(cli::RidgewatchConfig&)> overrides;
   /// Replaces open_gpio (tests pass fake lines). Called once at start when set or gpio.enabled.
   std::function<GpioLines(const cli::GpioConfig&)> gpio_factory;
+  /// Replaces open_source (tests inject an AlsaSource on a local ALSA configuration with failure seams).
+  std::function<std::unique_ptr<drivers::SampleSource>(const cli::SourceConfig&)> source_factory;
+  /// Stop acquiring after this many samples (0: no limit): the end of input then, as for a file
+  /// (accelerated soak runs with --loop; `ridgewatchd --max-samples N`).
+  std::uint64_t max_samples = 0;
 };
 
 /// Counters for the status line, tests and the exit summary.

@@ -22,6 +22,7 @@ using ridgewatch::daemon::Daemon;
 constexpr const char* kUsage =
     "usage: ridgewatchd [--config FILE] [--replay FILE] [--speed max|N] [--loop] [--channel N]\n"
     "                   [--events PATH|-] [--csv PATH] [--capture-dir DIR] [--log-level LEVEL]\n"
+    "                   [--max-samples N]   (stop after N input samples, e.g. for soak runs)\n"
     "       ridgewatchd --check-config FILE | --print-defaults | --version | --help\n"
     "signals: TERM/INT finish the impact in progress, flush and exit 0; HUP reloads the configuration\n"
     "         (a bad one is rejected, the old one kept) and reopens the output files; USR1 resets a\n"
@@ -59,7 +60,7 @@ void setup_logging(const std::string& level) {
 int run(const std::vector<std::string>& argv) {
   const cli::Args args(argv,
                        {"--config", "--replay", "--speed", "--channel", "--events", "--csv", "--capture-dir",
-                        "--log-level", "--check-config"},
+                        "--log-level", "--check-config", "--max-samples"},
                        {"--print-defaults", "--version", "--help", "--loop"});
   if (!args.positional().empty()) throw cli::UsageError("unexpected argument '" + args.positional().front() + "'");
   if (args.has("--help")) {
@@ -119,6 +120,7 @@ int run(const std::vector<std::string>& argv) {
   options.config = config;
   options.config_path = config_path.value_or("");
   options.overrides = overrides;
+  options.max_samples = static_cast<std::uint64_t>(args.integer("--max-samples", 0, 0, 1LL << 50));
   Daemon daemon(std::move(options));
   return daemon.run();
 }
