@@ -80,6 +80,7 @@ class ImpactAnalyzer {
   dsp::DampingMethod method_ = dsp::DampingMethod::ml;
   std::size_t n_pre_ = 0, n_win_ = 0, n_ml_margin_ = 0;
   std::vector<double> rows_hz_;
+  std::vector<double> row_gain_;                 // cwt_->noise_gain(rows_hz_[r]), computed once
   std::unique_ptr<dsp::MorletCwt<double>> cwt_;
   std::vector<double> power_;                    // rows x cols |W|^2
   std::vector<std::complex<double>> w_;          // one row
