@@ -81,6 +81,8 @@ ImpactDetector::ImpactDetector(const ImpactDetectorConfig& cfg, double fs, std::
   // windows, so that neither noise nor the beat of a decaying tail with a residual line (240 Hz for
   // 860/1100 Hz) makes a rise on its own.
   pre_n_ = std::max<std::size_t>(4 * sta_n_, static_cast<std::size_t>(std::ceil(fs / bw)));
+  inv_sta_n_ = 1.0 / static_cast<double>(sta_n_);
+  inv_pre_n_ = 1.0 / static_cast<double>(pre_n_);
   {
     // Fill-up of the low-pass for stationary input: g(k) = sum_{j<=k} h_j^2 / sum h^2, until 0.999.
     LowPass4 f = proto_;
@@ -118,6 +120,7 @@ void ImpactDetector::restart(std::uint64_t first_index) {
   phasor_ = {1.0, 0.0};
   sta_sum_ = pre_sum_ = 0.0;
   band_count_ = 0;
+  resum_left_ = pre_n_;
   lta_ = 0.0;
   holdoff_end_ = lta_frozen_until_ = first_index;
   confirming_ = false;
@@ -171,7 +174,9 @@ void ImpactDetector::push_raw(double x) {
   // Residual of sample m = i - 2 (needs m-2 .. m+2 inside the segment).
   if (i >= seg_start_ + 4) {
     const std::uint64_t m = i - 2;
-    const double pred = (-raw_[(m - 2) & 7] + 4.0 * raw_[(m - 1) & 7] + 4.0 * raw_[(m + 1) & 7] - raw_[(m + 2) & 7]) / 6.0;
+    // Multiplication by 1/6 instead of a division (divisions were ~4 of the ~14 ns per sample).
+    constexpr double kSixth = 1.0 / 6.0;
+    const double pred = (-raw_[(m - 2) & 7] + 4.0 * raw_[(m - 1) & 7] + 4.0 * raw_[(m + 1) & 7] - raw_[(m + 2) & 7]) * kSixth;
     res_[m & 7] = raw_[m & 7] - pred;
   } else if (i >= seg_start_ + 2) {
     res_[(i - 2) & 7] = 0.0;  // first two samples of a segment: no left neighbours, never spikes
@@ -260,7 +265,10 @@ void ImpactDetector::band_sample(std::uint64_t n, double clean) {
     pre_sum_ += moved;
     if (band_count_ > sta_n_ + pre_n_) pre_sum_ -= e_hist_[(n - sta_n_ - pre_n_) & y_mask_];
   }
-  if (band_count_ % pre_n_ == 0) {
+  // Countdown instead of band_count_ % pre_n_ == 0: a 64-bit division per sample cost more than
+  // the rest of this function's arithmetic.
+  if (--resum_left_ == 0) {
+    resum_left_ = pre_n_;
     sta_sum_ = pre_sum_ = 0.0;
     const std::uint64_t have = band_count_;
     for (std::uint64_t k = 0; k < std::min<std::uint64_t>(sta_n_, have); ++k) sta_sum_ += e_hist_[(n - k) & y_mask_];
@@ -277,7 +285,7 @@ void ImpactDetector::band_sample(std::uint64_t n, double clean) {
     }
   }
   if (band_count_ < warmup_) return;  // STA not yet full, or the low-pass has not filled enough
-  const double sta = std::max(sta_sum_, 0.0) / static_cast<double>(sta_n_);
+  const double sta = std::max(sta_sum_, 0.0) * inv_sta_n_;
 
   if (confirming_) {
     ++confirm_seen_;
@@ -299,8 +307,9 @@ void ImpactDetector::band_sample(std::uint64_t n, double clean) {
   }
   if (n < holdoff_end_) return;
   const std::uint64_t pre_count = std::min<std::uint64_t>(pre_n_, band_count_ - sta_n_);
-  const double pre = pre_count > 0 ? std::max(pre_sum_, 0.0) / static_cast<double>(pre_count) : 0.0;
-  const double ref = std::max({lta_ / kCapBias, pre, 1e-30});
+  const double inv_pre = pre_count == pre_n_ ? inv_pre_n_ : 1.0 / static_cast<double>(pre_count);
+  const double pre = pre_count > 0 ? std::max(pre_sum_, 0.0) * inv_pre : 0.0;
+  const double ref = std::max({lta_ * (1.0 / kCapBias), pre, 1e-30});
   if (sta > ratio_ * ref) {
     confirming_ = true;
     trigger_ = n;

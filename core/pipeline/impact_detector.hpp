@@ -150,6 +150,7 @@ class ImpactDetector {
   double spike_k_ = 12;
   std::size_t sta_n_ = 1, lta_n_ = 1, holdoff_ = 0, confirm_ = 1, lookback_ = 1;
   std::size_t pre_n_ = 1;   // pre-window (reference) length
+  double inv_sta_n_ = 1, inv_pre_n_ = 1;  // reciprocals: no division per sample
   std::size_t warmup_ = 1;  // band samples before triggers are allowed
   std::vector<double> fill_;  // low-pass fill-up g(k) after a restart
   std::size_t settle_ = 1;  // samples after a trigger before the onset is refined (model peak time)
@@ -172,6 +173,7 @@ class ImpactDetector {
   std::uint64_t y_mask_ = 0;
   double sta_sum_ = 0, pre_sum_ = 0;  // running sums over the STA window and the pre-window
   std::uint64_t band_count_ = 0;  // band samples in this segment
+  std::size_t resum_left_ = 1;    // band samples until the running sums are re-summed
   double lta_ = 0;
   std::uint64_t holdoff_end_ = 0, lta_frozen_until_ = 0;
   bool confirming_ = false;
