@@ -48,7 +48,8 @@ model::EffectSpec read_effect(const Reader& r, const YAML::Node& node, const std
 
 }  // namespace
 
-RigConfig parse_rig_yaml(const std::string& text, const std::string& name) {
+namespace {
+RigConfig parse_rig_yaml_unguarded(const std::string& text, const std::string& name) {
   const Reader r(name);
   const YAML::Node root = r.parse(text);
   r.check_map(root, "", {"gear", "mesh", "operation", "excitation", "sensor", "model"});
@@ -145,6 +146,18 @@ RigConfig parse_rig_yaml(const std::string& text, const std::string& name) {
     r.fail("", e.what());
   }
   return cfg;
+}
+}  // namespace
+
+RigConfig parse_rig_yaml(const std::string& text, const std::string& name) {
+  // Any structure yaml-cpp itself rejects while the keys are read (e.g. a subscript of a scalar, a
+  // key that is not a scalar) is a configuration error with the file's name and yaml-cpp's line and
+  // column, never an internal error (found by fuzz/fuzz_rig).
+  try {
+    return parse_rig_yaml_unguarded(text, name);
+  } catch (const YAML::Exception& e) {
+    throw UsageError(name + ": unexpected YAML structure: " + e.what());
+  }
 }
 
 RigConfig load_rig_yaml(const std::string& path) {

@@ -37,7 +37,8 @@ class YamlReader {
   void check_map(const YAML::Node& node, const std::string& path, const std::set<std::string>& allowed) const {
     if (!node.IsMap()) fail(path.empty() ? "(top level)" : path, "must be a mapping");
     for (const auto& kv : node) {
-      const std::string key = kv.first.as<std::string>();
+      if (!kv.first.IsScalar()) fail(path.empty() ? "(top level)" : path, "keys must be plain names");
+      const std::string key = kv.first.Scalar();
       if (!allowed.count(key)) {
         std::string known;
         for (const auto& k : allowed) known += (known.empty() ? "" : ", ") + k;
@@ -71,14 +72,14 @@ class YamlReader {
   /// Required number with a rule: "positive", "non-negative" or "any".
   double required(const YAML::Node& parent, const std::string& path, const std::string& key,
                   const std::string& rule) const {
-    const YAML::Node n = parent[key];
+    const YAML::Node n = child(parent, path, key);
     if (!n) fail(join(path, key), "missing (required)");
     return checked(n, join(path, key), rule);
   }
 
   double optional(const YAML::Node& parent, const std::string& path, const std::string& key,
                   const std::string& rule, double fallback) const {
-    const YAML::Node n = parent[key];
+    const YAML::Node n = child(parent, path, key);
     if (!n) return fallback;
     return checked(n, join(path, key), rule);
   }
@@ -92,10 +93,10 @@ class YamlReader {
 
   // Overlay readers: leave `field` unchanged when the key is absent.
   void read(const YAML::Node& parent, const std::string& path, const std::string& key, double& field) const {
-    if (const YAML::Node n = parent[key]) field = number(n, join(path, key));
+    if (const YAML::Node n = child(parent, path, key)) field = number(n, join(path, key));
   }
   void read(const YAML::Node& parent, const std::string& path, const std::string& key, bool& field) const {
-    const YAML::Node n = parent[key];
+    const YAML::Node n = child(parent, path, key);
     if (!n) return;
     try {
       if (!n.IsScalar()) throw YAML::Exception(YAML::Mark::null_mark(), "");
@@ -105,7 +106,7 @@ class YamlReader {
     }
   }
   void read(const YAML::Node& parent, const std::string& path, const std::string& key, std::string& field) const {
-    const YAML::Node n = parent[key];
+    const YAML::Node n = child(parent, path, key);
     if (!n) return;
     if (!n.IsScalar()) fail(join(path, key), "must be a string");
     field = n.Scalar();
@@ -113,7 +114,7 @@ class YamlReader {
   template <typename Int>
   void read_count(const YAML::Node& parent, const std::string& path, const std::string& key, Int& field,
                   long long lo, long long hi) const {
-    const YAML::Node n = parent[key];
+    const YAML::Node n = child(parent, path, key);
     if (!n) return;
     const double x = number(n, join(path, key));
     if (x != std::floor(x) || x < static_cast<double>(lo) || x > static_cast<double>(hi))
@@ -123,6 +124,13 @@ class YamlReader {
   }
 
  private:
+  /// parent[key], or a UsageError naming `path` when parent is a scalar or sequence (yaml-cpp would
+  /// throw its own BadSubscript, which is no message for a user).
+  YAML::Node child(const YAML::Node& parent, const std::string& path, const std::string& key) const {
+    if (parent && !parent.IsNull() && !parent.IsMap()) fail(path.empty() ? "(top level)" : path, "must be a mapping");
+    return parent[key];
+  }
+
   double checked(const YAML::Node& n, const std::string& path, const std::string& rule) const {
     const double x = number(n, path);
     if (rule == "positive" && !(x > 0)) fail(path, "must be > 0 (got " + format(x) + ")");

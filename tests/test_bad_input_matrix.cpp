@@ -340,6 +340,9 @@ TEST_F(BadInput, ConfigYamlErrorsOnBothCommands) {
       {"pipeline:\n  analyzer:\n    window_s: long\n", "pipeline.analyzer.window_s"},       // wrong type
       {"pipeline:\n  trend:\n    ewma_lambda: 7\n", "pipeline.trend.ewma_lambda"},          // out of range
       {"source:\n  ring_buffer_s: -1\n", "source.ring_buffer_s"},                             // out of range
+      // Found by fuzz/fuzz_config: a scalar where a section belongs was an internal error (exit 1).
+      {"pipeline:\n  analyzer: 5\n", "pipeline.analyzer: must be a mapping"},
+      {"pipeline:\n  ? [a, b]\n  : 1\n", "pipeline: keys must be plain names"},
   };
   for (const auto& c : cases) {
     SCOPED_TRACE(c.text);
@@ -382,6 +385,13 @@ TEST_F(BadInput, RigYamlWithImpossiblePhysics) {
     EXPECT_NE(r.err.find("rig.yaml: " + c.needle), std::string::npos) << r.err;
     EXPECT_FALSE(fs::exists(dir_ / "x.wav"));
   }
+  // Found by fuzz/fuzz_rig: a key that is not a plain name was an internal error (exit 1).
+  std::string text = paper;
+  text.replace(text.find("  J1: 0.093 "), 12, "  [J1]: 0.093 ");
+  const std::string rig = file("rig.yaml", text);
+  const CliResult r = run_cli({"simulate", "--rig", rig, "--duration", "0.01", "--out", (dir_ / "x").string()});
+  EXPECT_EQ(r.exit_code, 2) << r.err;
+  EXPECT_NE(r.err.find("rig.yaml: gear: keys must be plain names"), std::string::npos) << r.err;
 }
 
 }  // namespace
