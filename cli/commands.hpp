@@ -12,5 +12,7 @@ namespace ridgewatch::cli {
 int run_analyze(const std::vector<std::string>& args, std::ostream& out, std::ostream& err);
 int run_modes(const std::vector<std::string>& args, std::ostream& out, std::ostream& err);
 int run_simulate(const std::vector<std::string>& args, std::ostream& out, std::ostream& err);
+int run_compare(const std::vector<std::string>& args, std::ostream& out, std::ostream& err);
+int run_diagnose(const std::vector<std::string>& args, std::ostream& out, std::ostream& err);
 
 }  // namespace ridgewatch::cli

@@ -22,6 +22,10 @@ constexpr const char* kUsage =
     "  simulate --rig RIG.yaml [--effect NAME[:key=value,...]]... [--duration S] [--rate HZ] [--noise REL]\n"
     "           [--seed N] [--channels vib|vib,tacho] --out BASE   (or: simulate --list-effects)\n"
     "      simulate the gear-pair model; writes BASE.wav and BASE.truth.json\n"
+    "  compare --rig RIG.yaml FILE [--with EFFECT]... [--json]\n"
+    "      fit the gear-pair model to the impacts; fitted c0 vs nominal, held-out excess, where it fails\n"
+    "  diagnose --rig RIG.yaml FILE [--with EFFECT]... [--json] [--history H.jsonl] [--max-impacts N]\n"
+    "      find the missing model effect: try each catalogue effect, accept those that pass the gate\n"
     "  --version  print the version\n"
     "exit codes: 0 ok, 2 bad usage or configuration, 3 bad input data\n";
 
@@ -34,6 +38,8 @@ constexpr Command kCommands[] = {
     {"analyze", ridgewatch::cli::run_analyze},
     {"modes", ridgewatch::cli::run_modes},
     {"simulate", ridgewatch::cli::run_simulate},
+    {"compare", ridgewatch::cli::run_compare},
+    {"diagnose", ridgewatch::cli::run_diagnose},
 };
 
 }  // namespace

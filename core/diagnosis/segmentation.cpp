@@ -137,3 +137,22 @@ Segmentation segment_recording(std::span<const double> y, double fs, const model
 }
 
 }  // namespace ridgewatch::diagnosis
+
+namespace ridgewatch::diagnosis {
+
+Segmentation subset_windows(const Segmentation& seg, std::size_t max_windows) {
+  const std::size_t groups = std::max<std::size_t>(1, max_windows / 4);
+  if (seg.windows.size() <= groups * 4) return seg;
+  Segmentation out = seg;
+  out.windows.clear();
+  const std::size_t stride = seg.windows.size() / groups;
+  for (std::size_t g = 0; g < groups; ++g)
+    for (std::size_t k = 0; k < 4 && g * stride + k < seg.windows.size(); ++k) {
+      ImpactWindow w = seg.windows[g * stride + k];
+      w.predecessor = (k == 0 || w.predecessor < 0) ? -1 : static_cast<int>(out.windows.size()) - 1;
+      out.windows.push_back(w);
+    }
+  return out;
+}
+
+}  // namespace ridgewatch::diagnosis

@@ -46,3 +46,12 @@ Segmentation segment_recording(std::span<const double> y, double sample_rate_hz,
                                const SegmentationOptions& options = {});
 
 }  // namespace ridgewatch::diagnosis
+
+namespace ridgewatch::diagnosis {
+
+/// At most `max_windows` windows (rounded down to a multiple of 4, at least 4): runs of 4 consecutive
+/// impacts spread evenly over the record, so that each run carries its predecessors' tails and slow
+/// changes are still seen. Returns `seg` unchanged when it has no more windows than that.
+Segmentation subset_windows(const Segmentation& seg, std::size_t max_windows);
+
+}  // namespace ridgewatch::diagnosis

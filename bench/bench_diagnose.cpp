@@ -1,0 +1,150 @@
+// Diagnose acceptance sweep and timing (issue 5). Not a Google Benchmark: prints tables.
+//   bench_diagnose sweep [seeds]   each catalogue effect hidden, two noise levels, `seeds` seeds;
+//                                  controls (no hidden effect) over >= 20 seeds: false-accept rate
+//   bench_diagnose time            10 s at 51.2 kHz, 250 impacts: diagnose on a subset of impacts
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <string>
+#include <vector>
+
+#include "core/diagnosis/diagnose.hpp"
+#include "core/model/simulator.hpp"
+
+namespace rd = ridgewatch::diagnosis;
+namespace rm = ridgewatch::model;
+
+namespace {
+
+struct Case {
+  std::string name;
+  std::vector<rm::EffectSpec> hidden;
+  bool light_load = false;
+};
+
+std::vector<Case> cases() {
+  return {
+      {"control", {}},
+      {"mesh_stiffness_variation", {{"mesh_stiffness_variation", {{"scale", 1.5}}}}},
+      {"transmission_error", {{"transmission_error", {{"e1_m", 0.3e-6}, {"e2_m", 0.1e-6}}}}},
+      {"coulomb_friction", {{"coulomb_friction", {{"force_n", 30.0}}}}},
+      {"quadratic_damping", {{"quadratic_damping", {{"coefficient_n_s2_per_m2", 2e6}}}}},
+      {"second_mode", {{"second_mode", {{"frequency_hz", 1300.0}, {"damping_ratio", 0.015}, {"participation", 0.3}}}}},
+      {"contact_loss", {{"contact_loss", {{"loss_fraction", 1.0}}}}, true},
+      {"stiffness_nonlinearity", {{"stiffness_nonlinearity", {{"kappa", 0.5}, {"reference_deflection_m", 2e-6}}}}},
+      {"damping_drift", {{"damping_drift", {{"rate_per_s", 0.01}}}}},
+      {"friction+second_mode",
+       {{"coulomb_friction", {{"force_n", 30.0}}},
+        {"second_mode", {{"frequency_hz", 1300.0}, {"damping_ratio", 0.015}, {"participation", 0.3}}}}},
+  };
+}
+
+rm::RigParameters rig_for(const Case& c) {
+  rm::RigParameters rig;
+  rig.crack_angle_rad = 1.0;
+  if (c.light_load) {
+    rig.load_torque_n_m = 20.0;  // config/rigs/paper-rig-light-load.yaml
+  }
+  return rig;
+}
+
+std::vector<double> record(const rm::RigParameters& rig, std::vector<rm::EffectSpec> effects, double noise,
+                           double duration, std::uint64_t seed, double rate) {
+  effects.push_back({"noise", {{"std_rel", noise}}});
+  rm::SimulationSettings s;
+  s.sample_rate_hz = rate;
+  s.duration_s = 0.1 + duration;
+  s.seed = seed;
+  const auto r = rm::simulate(rig, effects, s);
+  return {r.output.begin() + static_cast<std::ptrdiff_t>(0.1 * rate), r.output.end()};
+}
+
+int sweep(int seeds) {
+  std::printf("| hidden | noise | seed | baseline excess | accepted | final excess | ok | s |\n|---|---|---|---|---|---|---|---|\n");
+  int ok_all = 0, n_all = 0, control_fa = 0, control_n = 0;
+  for (const auto& c : cases()) {
+    const int n_seeds = c.name == "control" ? std::max(seeds, 10) : seeds;
+    for (double noise : {0.005, 0.03}) {
+      for (int seed = 1; seed <= n_seeds; ++seed) {
+        const auto rig = rig_for(c);
+        const auto t0 = std::chrono::steady_clock::now();
+        const auto y = record(rig, c.hidden, noise, 0.64, static_cast<std::uint64_t>(seed) * 7919, 25600.0);
+        const auto seg = rd::segment_recording(y, 25600.0, rig);
+        const rd::ModelFitter fitter(y, seg, rig);
+        const auto res = rd::diagnose(fitter, {});
+        const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+        std::vector<std::string> want;
+        for (const auto& h : c.hidden) want.push_back(h.name);
+        std::vector<std::string> got = res.verdict;
+        std::sort(want.begin(), want.end());
+        std::sort(got.begin(), got.end());
+        const bool ok = got == want && res.final_excess < 0.1;
+        std::string acc;
+        for (const auto& v : res.verdict) acc += (acc.empty() ? "" : ",") + v;
+        std::printf("| %s | %.3f | %d | %.3g | %s | %.3g | %s | %.1f |\n", c.name.c_str(), noise, seed,
+                    res.baseline_excess, acc.empty() ? "-" : acc.c_str(), res.final_excess, ok ? "yes" : "NO", secs);
+        std::fflush(stdout);
+        ++n_all;
+        ok_all += ok;
+        if (c.name == "control") {
+          ++control_n;
+          control_fa += !res.verdict.empty();
+        }
+      }
+    }
+  }
+  std::printf("\ncorrect: %d / %d; controls: %d false accept(s) in %d runs\n", ok_all, n_all, control_fa, control_n);
+  return 0;
+}
+
+int timing() {
+  rm::RigParameters rig;
+  rig.crack_angle_rad = 1.0;
+  const double rate = 51200.0;
+  rm::SimulationSettings s;
+  s.sample_rate_hz = rate;
+  s.duration_s = 10.0;
+  s.seed = 5;
+  auto t0 = std::chrono::steady_clock::now();
+  const auto r = rm::simulate(rig, {{"coulomb_friction", {{"force_n", 30.0}}}, {"noise", {{"std_rel", 0.01}}}}, s);
+  const double t_sim = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  const std::vector<double>& y = r.output;
+  t0 = std::chrono::steady_clock::now();
+  const auto seg_all = rd::segment_recording(y, rate, rig);
+  const double t_seg = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  std::printf("| stage | impacts | seconds |\n|---|---|---|\n| simulate 10 s (test data) | %zu | %.2f |\n| segment (detector, noise, spikes) | %zu | %.2f |\n",
+              r.impacts.size(), t_sim, seg_all.windows.size(), t_seg);
+  for (std::size_t subset : {16u, 24u, 32u}) {
+    // Subset: runs of 4 consecutive impacts spread over the record (consecutive so that each carries
+    // its predecessor's tail; spread so that slow changes are seen).
+    rd::Segmentation seg = seg_all;
+    seg.windows.clear();
+    const std::size_t groups = subset / 4, stride = seg_all.windows.size() / groups;
+    for (std::size_t g = 0; g < groups; ++g)
+      for (std::size_t k = 0; k < 4; ++k) {
+        rd::ImpactWindow w = seg_all.windows[g * stride + k];
+        w.predecessor = k == 0 ? -1 : static_cast<int>(seg.windows.size()) - 1;
+        seg.windows.push_back(w);
+      }
+    t0 = std::chrono::steady_clock::now();
+    const rd::ModelFitter fitter(y, seg, rig);
+    const auto res = rd::diagnose(fitter, {});
+    const double t = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    std::string acc;
+    for (const auto& v : res.verdict) acc += (acc.empty() ? "" : ",") + v;
+    std::printf("| diagnose on %zu of %zu impacts (verdict %s, excess %.3g -> %.3g) | %zu | %.2f |\n", subset,
+                seg_all.windows.size(), acc.c_str(), res.baseline_excess, res.final_excess, subset, t);
+    std::fflush(stdout);
+  }
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  const std::string mode = argc > 1 ? argv[1] : "time";
+  if (mode == "sweep") return sweep(argc > 2 ? std::atoi(argv[2]) : 2);
+  return timing();
+}

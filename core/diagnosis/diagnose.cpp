@@ -1,0 +1,253 @@
+#include "core/diagnosis/diagnose.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <sstream>
+
+#include "core/model/effect_registry.hpp"
+
+namespace ridgewatch::diagnosis {
+
+namespace {
+
+std::string fmt(double v, int digits = 3) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%.*g", digits, v);
+  return buf;
+}
+
+const ParameterEstimate* find_estimate(const FitResult& f, const std::string& name) {
+  for (const auto& e : f.estimates)
+    if (e.name == name) return &e;
+  return nullptr;
+}
+
+double f0_of(const ModelFitter& fitter, const FitResult& f) {
+  model::RigParameters r = fitter.rig();
+  r.mean_mesh_stiffness_n_per_m = find_estimate(f, "c0_n_per_m")->value;
+  return r.natural_frequency_hz();
+}
+
+/// Plausibility of the fitted values of `effect` in `fit`; returns the reason when implausible.
+std::string implausibility(const ModelFitter& fitter, const FitResult& fit, const std::string& effect) {
+  const CandidateSpec* c = find_candidate(effect);
+  const model::EffectDescriptor* d = model::find_effect(effect);
+  bool significant = false;
+  for (const auto& f : c->free) {
+    const ParameterEstimate* e = find_estimate(fit, effect + "." + f.key);
+    if (e->at_bound) return f.key + " at the bound of its range (" + fmt(e->value) + ")";
+    double null_value = 0.0;
+    bool has_null = false;
+    for (const auto& p : d->parameters)
+      if (p.key == f.key && p.null_value) {
+        null_value = *p.null_value;
+        has_null = true;
+      }
+    // Significantly away from the value at which the effect vanishes: more than 2 sd (95 %).
+    if (has_null && std::abs(e->value - null_value) > 2.0 * e->sd) significant = true;
+  }
+  if (!significant) return "fitted size not significantly different from zero (within 2 standard deviations)";
+  const double f0 = f0_of(fitter, fit);
+  const double zeta = find_estimate(fit, "zeta")->value;
+  const auto& seg = fitter.segmentation();
+  if (effect == "second_mode") {
+    const double f2 = find_estimate(fit, "second_mode.frequency_hz")->value;
+    const double z2 = find_estimate(fit, "second_mode.damping_ratio")->value;
+    // Resolution of a window of post_s: 1/T (50 Hz for 20 ms); f0's own half-power band is ±ζ f0.
+    const double t_post = static_cast<double>(seg.windows[0].end) / seg.sample_rate_hz - seg.windows[0].onset_s;
+    const double res = 1.0 / std::max(t_post, 1e-3);
+    if (std::abs(f2 - f0) < std::max(2.0 * zeta * f0, res))
+      return "second mode at " + fmt(f2, 4) + " Hz sits on f0's own bandwidth (f0 = " + fmt(f0, 4) + " Hz)";
+    double fz = 0.0;
+    for (const auto& w : seg.windows) fz += w.mesh_hz;
+    fz /= static_cast<double>(seg.windows.size());
+    for (int k = 1; k <= 3; ++k)
+      for (double line : {k * fz, f0 + k * fz, f0 - k * fz})
+        if (std::abs(f2 - line) < res)
+          return "second mode at " + fmt(f2, 4) + " Hz sits on a mesh line or sideband (" + fmt(line, 4) + " Hz)";
+    // ζ2 > 0.2: a "mode" that dies within a cycle is a broadband transient (e.g. a spike), not a mode.
+    if (z2 > 0.2) return "second mode damping ratio " + fmt(z2) + " > 0.2 is not a resonance";
+  }
+  if (effect == "damping_drift") {
+    const double rate = find_estimate(fit, "damping_drift.rate_per_s")->value;
+    const double t_end = static_cast<double>(seg.windows.back().end) / seg.sample_rate_hz;
+    if (zeta + rate * t_end <= 0.0 || zeta <= 0.0) return "the drift would make the damping ratio negative";
+  }
+  return "";
+}
+
+std::string interval(const ParameterEstimate& e) {
+  return fmt(e.value) + " (95 %: " + fmt(e.ci95_lo) + " .. " + fmt(e.ci95_hi) + ")";
+}
+
+/// Mean of the first / last populated backbone bins.
+bool backbone_ends(const std::vector<double>& amp, const std::vector<double>& v, double& a_lo, double& v_lo,
+                   double& a_hi, double& v_hi) {
+  int lo = -1, hi = -1;
+  for (std::size_t k = 0; k < v.size(); ++k)
+    if (std::isfinite(v[k])) {
+      if (lo < 0) lo = static_cast<int>(k);
+      hi = static_cast<int>(k);
+    }
+  if (lo < 0 || lo == hi) return false;
+  a_lo = amp[static_cast<std::size_t>(lo)];
+  v_lo = v[static_cast<std::size_t>(lo)];
+  a_hi = amp[static_cast<std::size_t>(hi)];
+  v_hi = v[static_cast<std::size_t>(hi)];
+  return true;
+}
+
+std::string evidence(const std::string& effect, const FitResult& fit, const ResidualReport& before) {
+  std::ostringstream o;
+  double a_lo, a_hi, v_lo, v_hi;
+  if (effect == "coulomb_friction" || effect == "quadratic_damping") {
+    if (backbone_ends(before.measured.amplitude_rel, before.measured.zeta, a_lo, v_lo, a_hi, v_hi))
+      o << "measured damping " << fmt(v_hi, 2) << " at " << fmt(100 * a_hi, 2) << " % amplitude, " << fmt(v_lo, 2)
+        << " at " << fmt(100 * a_lo, 2) << " % — damping " << (v_lo > v_hi ? "rises" : "falls")
+        << " as amplitude falls; ";
+    o << (effect == "coulomb_friction" ? "dry friction (ζ_eq ∝ 1/A, linear envelope decay)"
+                                       : "velocity-squared damping (ζ_eq ∝ A)");
+  } else if (effect == "stiffness_nonlinearity" || effect == "contact_loss") {
+    if (backbone_ends(before.measured.amplitude_rel, before.measured.f_hz, a_lo, v_lo, a_hi, v_hi))
+      o << "measured frequency " << fmt(v_hi, 5) << " Hz at " << fmt(100 * a_hi, 2) << " % amplitude, " << fmt(v_lo, 5)
+        << " Hz at " << fmt(100 * a_lo, 2) << " % — frequency " << (v_hi > v_lo ? "rises" : "falls")
+        << " with amplitude; ";
+    o << (effect == "contact_loss" ? "tooth separation at large amplitude (softening)" : "cubic mesh stiffness");
+  } else if (effect == "mesh_stiffness_variation" || effect == "transmission_error" || effect == "second_mode") {
+    std::vector<std::string> lines;
+    for (const auto& p : before.peaks)
+      lines.push_back(fmt(p.f_hz, 4) + " Hz" + (p.marker.empty() ? "" : " (" + p.marker + ")"));
+    if (!lines.empty()) {
+      o << "residual lines at ";
+      for (std::size_t i = 0; i < std::min<std::size_t>(lines.size(), 4); ++i) o << (i ? ", " : "") << lines[i];
+      o << "; ";
+    }
+    if (effect == "mesh_stiffness_variation") o << "sidebands f0 ± k·f_z: the stiffness varies with the mesh angle (Eq. B1)";
+    else if (effect == "transmission_error") o << "steady lines at k·f_z, present before the impact: transmission error";
+    else o << "a decaying residual line away from f0: a second mode";
+  } else if (effect == "damping_drift") {
+    o << "the damping ratio changes along the record while each impact fits on its own";
+  }
+  o << ". Fitted:";
+  for (const auto& e : fit.estimates)
+    if (e.name.rfind(effect + ".", 0) == 0) o << " " << e.name.substr(effect.size() + 1) << " = " << interval(e) << ";";
+  return o.str();
+}
+
+double second_mode_start(const ResidualReport& rep, double f0, double zeta) {
+  for (const auto& p : rep.peaks)
+    if (std::abs(p.f_hz - f0) > 3.0 * zeta * f0) return p.f_hz;
+  return 1.1 * f0;
+}
+
+}  // namespace
+
+std::vector<std::string> sensor_problems(const Segmentation& seg, double duration_s) {
+  std::vector<std::string> out;
+  if (!seg.spikes.empty())
+    out.push_back(std::to_string(seg.spikes.size()) + " isolated spike(s) (" + fmt(static_cast<double>(seg.spikes.size()) / duration_s, 3) +
+                  " per s; first at " + fmt(static_cast<double>(seg.spikes.front()) / seg.sample_rate_hz, 4) +
+                  " s): a sensor problem (vibrometer dropout or electrical transient), masked before fitting");
+  if (!seg.dropouts.empty())
+    out.push_back(std::to_string(seg.dropouts.size()) + " dropout(s), " + std::to_string(seg.dropout_samples) +
+                  " samples held constant: a sensor/acquisition problem, masked before fitting");
+  return out;
+}
+
+DiagnoseResult diagnose(const ModelFitter& fitter, const std::vector<std::string>& initial,
+                        const DiagnoseOptions& options) {
+  DiagnoseResult res;
+  res.initial_effects = initial;
+  const auto& seg = fitter.segmentation();
+  res.sensor_problems = sensor_problems(seg, static_cast<double>(fitter.data().size()) / seg.sample_rate_hz);
+  std::vector<std::string> model = initial;
+  FitResult current = fitter.fit(model);
+  res.baseline_excess = current.heldout_excess;
+  ResidualReport current_rep = analyse_residual(fitter, current);
+
+  std::vector<std::string> pool = options.candidates;
+  if (pool.empty())
+    for (const auto& c : candidate_table()) pool.push_back(c.effect);
+
+  for (int round = 1; round <= options.max_rounds; ++round) {
+    std::vector<std::pair<CandidateOutcome, FitResult>> tried;
+    const double f0 = f0_of(fitter, current);
+    const double zeta = find_estimate(current, "zeta")->value;
+    for (const auto& name : pool) {
+      if (std::find(model.begin(), model.end(), name) != model.end()) continue;
+      std::vector<std::string> with = model;
+      with.push_back(name);
+      std::vector<std::pair<std::string, double>> starts;
+      if (name == "second_mode") starts.push_back({"second_mode.frequency_hz", second_mode_start(current_rep, f0, zeta)});
+      FitResult f = fitter.fit(with, &current, starts);
+      CandidateOutcome o;
+      o.effect = name;
+      o.round = round;
+      o.excess_before = current.heldout_excess;
+      o.excess_after = f.heldout_excess;
+      o.required_gain = 3.0 * std::sqrt(2.0 / std::max(1.0, f.heldout_n)) * (1.0 + std::max(0.0, f.heldout_excess));
+      o.gain_ok = o.excess_before - o.excess_after > o.required_gain;
+      double improved = 0.0, held = 0.0;
+      for (std::size_t w = 0; w < seg.windows.size(); ++w)
+        if (fitter.is_heldout(w)) {
+          held += 1.0;
+          if (f.impact_power[w] < current.impact_power[w]) improved += 1.0;
+        }
+      o.fraction_improved = held > 0.0 ? improved / held : 0.0;
+      o.impacts_ok = o.fraction_improved >= 0.75;
+      o.delta_bic = f.bic - current.bic;
+      o.bic_ok = o.delta_bic < -10.0;
+      o.plausibility = implausibility(fitter, f, name);
+      o.plausible = o.plausibility.empty();
+      o.passed = o.gain_ok && o.impacts_ok && o.bic_ok && o.plausible;
+      for (const auto& e : f.estimates)
+        if (e.name.rfind(name + ".", 0) == 0 || (e.name == "mesh_phase_rad" && find_candidate(name)->mesh_periodic))
+          o.parameters.push_back(e);
+      o.evidence = evidence(name, f, current_rep);
+      tried.push_back({o, std::move(f)});
+    }
+    int best = -1;
+    for (std::size_t i = 0; i < tried.size(); ++i)
+      if (tried[i].first.passed &&
+          (best < 0 || tried[i].first.excess_after < tried[static_cast<std::size_t>(best)].first.excess_after))
+        best = static_cast<int>(i);
+    if (best >= 0) tried[static_cast<std::size_t>(best)].first.accepted = true;
+    for (const auto& t : tried) res.steps.push_back(t.first);
+    if (best < 0) break;
+    auto& chosen = tried[static_cast<std::size_t>(best)];
+    model.push_back(chosen.first.effect);
+    res.verdict.push_back(chosen.first.effect);
+    current = std::move(chosen.second);
+    current_rep = analyse_residual(fitter, current);
+  }
+  res.final_excess = current.heldout_excess;
+  res.final_fit_percent = current.fit_percent;
+  // Unexplained: the final held-out excess is still above 0.1 (the acceptance target, ~3 standard
+  // errors of the excess for a few thousand held-out samples) and above its own 3-SE noise.
+  const double se3 = 3.0 * std::sqrt(2.0 / std::max(1.0, current.heldout_n));
+  res.unexplained = res.final_excess > std::max(0.1, se3);
+  if (res.unexplained) {
+    std::ostringstream w;
+    w << "held-out excess " << fmt(res.final_excess) << " remains";
+    std::size_t worst = 0;
+    for (std::size_t b = 0; b < current_rep.excess_vs_time.size(); ++b)
+      if (current_rep.excess_vs_time[b] > current_rep.excess_vs_time[worst]) worst = b;
+    if (!current_rep.excess_vs_time.empty())
+      w << "; largest " << worst << "-" << worst + 1 << " ms after the impact (excess "
+        << fmt(current_rep.excess_vs_time[worst]) << ")";
+    if (!current_rep.peaks.empty()) {
+      w << "; residual lines at";
+      for (std::size_t i = 0; i < std::min<std::size_t>(3, current_rep.peaks.size()); ++i)
+        w << " " << fmt(current_rep.peaks[i].f_hz, 4) << " Hz"
+          << (current_rep.peaks[i].marker.empty() ? "" : " (" + current_rep.peaks[i].marker + ")");
+    }
+    if (!current_rep.white) w << "; residual not white (Ljung-Box Q " << fmt(current_rep.ljung_box_q) << ")";
+    res.unexplained_where = w.str();
+  }
+  res.final_fit = std::move(current);
+  res.final_report = std::move(current_rep);
+  return res;
+}
+
+}  // namespace ridgewatch::diagnosis

@@ -1,0 +1,65 @@
+// The missing-effect loop (issue 5 "diagnose"): starting from a model, refit with every diagnosable
+// catalogue effect not yet in it, judge each on the held-out impacts, accept the best one that passes
+// the gate, repeat until none passes. Pure computation.
+//
+// Gate (all required; DESIGN.md "Model-discrepancy loop"):
+//  1. clear held-out gain: excess_before - excess_after > 3 sqrt(2 / n_held) (1 + excess_after), three
+//     standard errors of a held-out power ratio over n_held white samples;
+//  2. at least 75 % of the held-out impacts improve (a real effect acts on every impact; fitting noise
+//     improves about half of them);
+//  3. training ΔBIC < -10 ("very strong" evidence on the Kass–Raftery scale);
+//  4. physically plausible fitted values: the effect's size significantly non-zero (> 2 sd from its
+//     null value) and not stuck at a bound, and effect-specific rules (a second mode off f0's own
+//     bandwidth and off the mesh lines and sidebands, damped below 0.2; a damping drift keeping ζ > 0).
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "core/diagnosis/model_fit.hpp"
+#include "core/diagnosis/residual_analysis.hpp"
+
+namespace ridgewatch::diagnosis {
+
+struct CandidateOutcome {
+  std::string effect;
+  int round = 0;
+  double excess_before = 0.0, excess_after = 0.0;
+  double required_gain = 0.0;
+  double fraction_improved = 0.0;
+  double delta_bic = 0.0;
+  bool plausible = false;
+  std::string plausibility;  ///< why not plausible (empty when plausible)
+  bool gain_ok = false, impacts_ok = false, bic_ok = false;
+  bool passed = false;       ///< all four gates
+  bool accepted = false;     ///< chosen in its round
+  std::vector<ParameterEstimate> parameters;  ///< the effect's own fitted parameters
+  std::string evidence;      ///< in words
+};
+
+struct DiagnoseOptions {
+  int max_rounds = 3;
+  std::vector<std::string> candidates;  ///< empty: every diagnosable effect
+};
+
+struct DiagnoseResult {
+  std::vector<std::string> initial_effects;
+  double baseline_excess = 0.0;
+  std::vector<CandidateOutcome> steps;   ///< every candidate tried, in order
+  std::vector<std::string> verdict;      ///< accepted effects in order
+  double final_excess = 0.0;
+  double final_fit_percent = 0.0;
+  bool unexplained = false;
+  std::string unexplained_where;
+  std::vector<std::string> sensor_problems;
+  FitResult final_fit;
+  ResidualReport final_report;
+};
+
+DiagnoseResult diagnose(const ModelFitter& fitter, const std::vector<std::string>& initial_effects,
+                        const DiagnoseOptions& options = {});
+
+/// Sentences about sensor faults found in the segmentation (spikes, dropouts); empty if none.
+std::vector<std::string> sensor_problems(const Segmentation& seg, double duration_s);
+
+}  // namespace ridgewatch::diagnosis
