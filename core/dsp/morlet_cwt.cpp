@@ -1,5 +1,7 @@
 #include "core/dsp/morlet_cwt.hpp"
 
+#include "core/dsp/fftw_planner.hpp"
+
 #include <fftw3.h>
 
 #include <algorithm>
@@ -15,12 +17,6 @@ namespace ridgewatch::dsp {
 
 namespace {
 
-// FFTW's planner is not thread-safe; plan creation and destruction are serialised here so that
-// transforms may be constructed from any thread. Executing plans is thread-safe.
-std::mutex& planner_mutex() {
-  static std::mutex m;
-  return m;
-}
 
 template <typename Real>
 struct Fftw;
@@ -132,7 +128,7 @@ struct MorletCwt<Real>::Impl {
   static constexpr std::size_t kLanes = 8;
 
   ~Impl() {
-    std::lock_guard<std::mutex> lock(planner_mutex());
+    std::lock_guard<std::mutex> lock(fftw_planner_mutex());
     if (forward) F::destroy(forward);
     if (backward) F::destroy(backward);
     F::free(time_buf);
@@ -292,7 +288,7 @@ MorletCwt<Real>::MorletCwt(MorletCwtConfig config) : impl_(std::make_unique<Impl
     im.short_len = im.fft_len;
   }
 
-  std::lock_guard<std::mutex> lock(planner_mutex());
+  std::lock_guard<std::mutex> lock(fftw_planner_mutex());
   using F = typename Impl::F;
   im.time_buf = F::alloc_real(im.fft_len);
   im.spectrum = F::alloc_complex(im.fft_len / 2 + 1);
