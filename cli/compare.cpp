@@ -14,11 +14,7 @@ namespace ridgewatch::cli {
 
 namespace {
 
-std::string f(double v, int d = 4) {
-  char b[64];
-  std::snprintf(b, sizeof b, "%.*g", d, v);
-  return b;
-}
+std::string f(double v, int d = 4) { return diagnosis::format_number(v, d); }
 
 }  // namespace
 

@@ -16,11 +16,7 @@ namespace ridgewatch::cli {
 
 namespace {
 
-std::string g(double v, int d = 3) {
-  char b[64];
-  std::snprintf(b, sizeof b, "%.*g", d, v);
-  return b;
-}
+std::string g(double v, int d = 3) { return diagnosis::format_number(v, d); }
 
 }  // namespace
 

@@ -11,12 +11,6 @@ namespace ridgewatch::diagnosis {
 
 namespace {
 
-std::string fmt(double v, int digits = 3) {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, "%.*g", digits, v);
-  return buf;
-}
-
 const ParameterEstimate* find_estimate(const FitResult& f, const std::string& name) {
   for (const auto& e : f.estimates)
     if (e.name == name) return &e;
@@ -36,7 +30,7 @@ std::string implausibility(const ModelFitter& fitter, const FitResult& fit, cons
   bool significant = false;
   for (const auto& f : c->free) {
     const ParameterEstimate* e = find_estimate(fit, effect + "." + f.key);
-    if (e->at_bound) return f.key + " at the bound of its range (" + fmt(e->value) + ")";
+    if (e->at_bound) return f.key + " at the bound of its range (" + format_number(e->value) + ")";
     double null_value = 0.0;
     bool has_null = false;
     for (const auto& p : d->parameters)
@@ -58,16 +52,16 @@ std::string implausibility(const ModelFitter& fitter, const FitResult& fit, cons
     const double t_post = static_cast<double>(seg.windows[0].end) / seg.sample_rate_hz - seg.windows[0].onset_s;
     const double res = 1.0 / std::max(t_post, 1e-3);
     if (std::abs(f2 - f0) < std::max(2.0 * zeta * f0, res))
-      return "second mode at " + fmt(f2, 4) + " Hz sits on f0's own bandwidth (f0 = " + fmt(f0, 4) + " Hz)";
+      return "second mode at " + format_number(f2, 4) + " Hz sits on f0's own bandwidth (f0 = " + format_number(f0, 4) + " Hz)";
     double fz = 0.0;
     for (const auto& w : seg.windows) fz += w.mesh_hz;
     fz /= static_cast<double>(seg.windows.size());
     for (int k = 1; k <= 3; ++k)
       for (double line : {k * fz, f0 + k * fz, f0 - k * fz})
         if (std::abs(f2 - line) < res)
-          return "second mode at " + fmt(f2, 4) + " Hz sits on a mesh line or sideband (" + fmt(line, 4) + " Hz)";
+          return "second mode at " + format_number(f2, 4) + " Hz sits on a mesh line or sideband (" + format_number(line, 4) + " Hz)";
     // ζ2 > 0.2: a "mode" that dies within a cycle is a broadband transient (e.g. a spike), not a mode.
-    if (z2 > 0.2) return "second mode damping ratio " + fmt(z2) + " > 0.2 is not a resonance";
+    if (z2 > 0.2) return "second mode damping ratio " + format_number(z2) + " > 0.2 is not a resonance";
   }
   if (effect == "damping_drift") {
     const double rate = find_estimate(fit, "damping_drift.rate_per_s")->value;
@@ -78,7 +72,7 @@ std::string implausibility(const ModelFitter& fitter, const FitResult& fit, cons
 }
 
 std::string interval(const ParameterEstimate& e) {
-  return fmt(e.value) + " (95 %: " + fmt(e.ci95_lo) + " .. " + fmt(e.ci95_hi) + ")";
+  return format_number(e.value) + " (95 %: " + format_number(e.ci95_lo) + " .. " + format_number(e.ci95_hi) + ")";
 }
 
 /// Mean of the first / last populated backbone bins.
@@ -103,21 +97,21 @@ std::string evidence(const std::string& effect, const FitResult& fit, const Resi
   double a_lo, a_hi, v_lo, v_hi;
   if (effect == "coulomb_friction" || effect == "quadratic_damping") {
     if (backbone_ends(before.measured.amplitude_rel, before.measured.zeta, a_lo, v_lo, a_hi, v_hi))
-      o << "measured damping " << fmt(v_hi, 2) << " at " << fmt(100 * a_hi, 2) << " % amplitude, " << fmt(v_lo, 2)
-        << " at " << fmt(100 * a_lo, 2) << " % — damping " << (v_lo > v_hi ? "rises" : "falls")
+      o << "measured damping " << format_number(v_hi, 2) << " at " << format_number(100 * a_hi, 2) << " % amplitude, " << format_number(v_lo, 2)
+        << " at " << format_number(100 * a_lo, 2) << " % — damping " << (v_lo > v_hi ? "rises" : "falls")
         << " as amplitude falls; ";
     o << (effect == "coulomb_friction" ? "dry friction (ζ_eq ∝ 1/A, linear envelope decay)"
                                        : "velocity-squared damping (ζ_eq ∝ A)");
   } else if (effect == "stiffness_nonlinearity" || effect == "contact_loss") {
     if (backbone_ends(before.measured.amplitude_rel, before.measured.f_hz, a_lo, v_lo, a_hi, v_hi))
-      o << "measured frequency " << fmt(v_hi, 5) << " Hz at " << fmt(100 * a_hi, 2) << " % amplitude, " << fmt(v_lo, 5)
-        << " Hz at " << fmt(100 * a_lo, 2) << " % — frequency " << (v_hi > v_lo ? "rises" : "falls")
+      o << "measured frequency " << format_number(v_hi, 5) << " Hz at " << format_number(100 * a_hi, 2) << " % amplitude, " << format_number(v_lo, 5)
+        << " Hz at " << format_number(100 * a_lo, 2) << " % — frequency " << (v_hi > v_lo ? "rises" : "falls")
         << " with amplitude; ";
     o << (effect == "contact_loss" ? "tooth separation at large amplitude (softening)" : "cubic mesh stiffness");
   } else if (effect == "mesh_stiffness_variation" || effect == "transmission_error" || effect == "second_mode") {
     std::vector<std::string> lines;
     for (const auto& p : before.peaks)
-      lines.push_back(fmt(p.f_hz, 4) + " Hz" + (p.marker.empty() ? "" : " (" + p.marker + ")"));
+      lines.push_back(format_number(p.f_hz, 4) + " Hz" + (p.marker.empty() ? "" : " (" + p.marker + ")"));
     if (!lines.empty()) {
       o << "residual lines at ";
       for (std::size_t i = 0; i < std::min<std::size_t>(lines.size(), 4); ++i) o << (i ? ", " : "") << lines[i];
@@ -146,8 +140,8 @@ double second_mode_start(const ResidualReport& rep, double f0, double zeta) {
 std::vector<std::string> sensor_problems(const Segmentation& seg, double duration_s) {
   std::vector<std::string> out;
   if (!seg.spikes.empty())
-    out.push_back(std::to_string(seg.spikes.size()) + " isolated spike(s) (" + fmt(static_cast<double>(seg.spikes.size()) / duration_s, 3) +
-                  " per s; first at " + fmt(static_cast<double>(seg.spikes.front()) / seg.sample_rate_hz, 4) +
+    out.push_back(std::to_string(seg.spikes.size()) + " isolated spike(s) (" + format_number(static_cast<double>(seg.spikes.size()) / duration_s, 3) +
+                  " per s; first at " + format_number(static_cast<double>(seg.spikes.front()) / seg.sample_rate_hz, 4) +
                   " s): a sensor problem (vibrometer dropout or electrical transient), masked before fitting");
   if (!seg.dropouts.empty())
     out.push_back(std::to_string(seg.dropouts.size()) + " dropout(s), " + std::to_string(seg.dropout_samples) +
@@ -229,25 +223,31 @@ DiagnoseResult diagnose(const ModelFitter& fitter, const std::vector<std::string
   res.unexplained = res.final_excess > std::max(0.1, se3);
   if (res.unexplained) {
     std::ostringstream w;
-    w << "held-out excess " << fmt(res.final_excess) << " remains";
+    w << "held-out excess " << format_number(res.final_excess) << " remains";
     std::size_t worst = 0;
     for (std::size_t b = 0; b < current_rep.excess_vs_time.size(); ++b)
       if (current_rep.excess_vs_time[b] > current_rep.excess_vs_time[worst]) worst = b;
     if (!current_rep.excess_vs_time.empty())
       w << "; largest " << worst << "-" << worst + 1 << " ms after the impact (excess "
-        << fmt(current_rep.excess_vs_time[worst]) << ")";
+        << format_number(current_rep.excess_vs_time[worst]) << ")";
     if (!current_rep.peaks.empty()) {
       w << "; residual lines at";
       for (std::size_t i = 0; i < std::min<std::size_t>(3, current_rep.peaks.size()); ++i)
-        w << " " << fmt(current_rep.peaks[i].f_hz, 4) << " Hz"
+        w << " " << format_number(current_rep.peaks[i].f_hz, 4) << " Hz"
           << (current_rep.peaks[i].marker.empty() ? "" : " (" + current_rep.peaks[i].marker + ")");
     }
-    if (!current_rep.white) w << "; residual not white (Ljung-Box Q " << fmt(current_rep.ljung_box_q) << ")";
+    if (!current_rep.white) w << "; residual not white (Ljung-Box Q " << format_number(current_rep.ljung_box_q) << ")";
     res.unexplained_where = w.str();
   }
   res.final_fit = std::move(current);
   res.final_report = std::move(current_rep);
   return res;
+}
+
+std::string format_number(double value, int digits) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%.*g", digits, value);
+  return buf;
 }
 
 }  // namespace ridgewatch::diagnosis

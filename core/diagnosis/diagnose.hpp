@@ -62,4 +62,7 @@ DiagnoseResult diagnose(const ModelFitter& fitter, const std::vector<std::string
 /// Sentences about sensor faults found in the segmentation (spikes, dropouts); empty if none.
 std::vector<std::string> sensor_problems(const Segmentation& seg, double duration_s);
 
+/// A number with `digits` significant digits (%.*g) for evidence texts and reports.
+std::string format_number(double value, int digits = 3);
+
 }  // namespace ridgewatch::diagnosis
