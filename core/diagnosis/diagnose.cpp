@@ -159,6 +159,7 @@ DiagnoseResult diagnose(const ModelFitter& fitter, const std::vector<std::string
   FitResult current = fitter.fit(model);
   res.baseline_excess = current.heldout_excess;
   ResidualReport current_rep = analyse_residual(fitter, current);
+  res.rounds.push_back({model, current.heldout_excess, current.fit_percent, current_rep});
 
   std::vector<std::string> pool = options.candidates;
   if (pool.empty())
@@ -214,6 +215,7 @@ DiagnoseResult diagnose(const ModelFitter& fitter, const std::vector<std::string
     res.verdict.push_back(chosen.first.effect);
     current = std::move(chosen.second);
     current_rep = analyse_residual(fitter, current);
+    res.rounds.push_back({model, current.heldout_excess, current.fit_percent, current_rep});
   }
   res.final_excess = current.heldout_excess;
   res.final_fit_percent = current.fit_percent;

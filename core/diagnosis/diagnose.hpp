@@ -54,6 +54,15 @@ struct DiagnoseResult {
   std::vector<std::string> sensor_problems;
   FitResult final_fit;
   ResidualReport final_report;
+  /// The model after each round: [0] the starting model, then one entry per accepted effect (for
+  /// "watch the error fall" tables and per-step residual spectra). `effects` is that round's model.
+  struct Round {
+    std::vector<std::string> effects;
+    double heldout_excess = 0.0;
+    double fit_percent = 0.0;
+    ResidualReport report;
+  };
+  std::vector<Round> rounds;
 };
 
 DiagnoseResult diagnose(const ModelFitter& fitter, const std::vector<std::string>& initial_effects,
