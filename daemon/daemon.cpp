@@ -7,7 +7,9 @@
 #include <bit>
 #include <chrono>
 #include <cmath>
+#include <condition_variable>
 #include <ctime>
+#include <mutex>
 #include <thread>
 #include <vector>
 
@@ -70,6 +72,11 @@ struct Daemon::Impl {
   std::atomic<bool> acq_done{false};
   std::atomic<std::uint64_t> acq_samples{0};
   std::string acq_error;  // written by the acquisition thread before acq_done (release)
+  // Wakes the processing loop when a block has been written or the acquisition ended. The producer
+  // notifies without taking the mutex (it never blocks on the consumer); a wake-up lost between the
+  // consumer's check and its wait costs at most the wait's time-out.
+  std::mutex wake_mutex;
+  std::condition_variable wake;
 
   GpioLines gpio;
   std::vector<drivers::TachoEdge> edges;
@@ -128,9 +135,14 @@ struct Daemon::Impl {
   }
 
   void acquire() {
-    // Blocks of ~2.5 ms: a paced source hands a block over when its last sample is due, so the block
-    // length adds directly to the event latency; the ring's per-block cost is ~40 ns (bench_ring_buffer).
-    const auto block = static_cast<std::size_t>(std::clamp(fs / 400.0, 32.0, 65536.0));
+    // Live or paced: blocks of ~2.5 ms, since a paced source hands a block over when its last sample is
+    // due and the block length adds directly to the event latency (the ring's per-block cost is ~40 ns,
+    // bench_ring_buffer). As fast as possible there is no latency to keep: 16384-sample blocks amortise
+    // the per-call cost of the file reader and of the wake-ups.
+    const bool unpaced = !live && !(cfg.source.replay.speed > 0);
+    // A block never exceeds half the ring, so a lossless replay always finds room for it eventually.
+    const std::size_t wanted = unpaced ? std::size_t{16384} : static_cast<std::size_t>(std::clamp(fs / 400.0, 32.0, 65536.0));
+    const std::size_t block = std::clamp<std::size_t>(ring->usable_items() / 2, 1, wanted);
     std::vector<double> in(block);
     std::vector<float> out(block);
     try {
@@ -153,11 +165,13 @@ struct Daemon::Impl {
           std::this_thread::sleep_for(std::chrono::microseconds(200));
         ring->write(std::span<const float>(out.data(), n));
         acq_samples.fetch_add(n, std::memory_order_relaxed);
+        wake.notify_one();
       }
     } catch (const std::exception& e) {
       acq_error = e.what();
     }
     acq_done.store(true, std::memory_order_release);
+    wake.notify_one();
   }
 
   void emit(const std::vector<pipeline::ImpactEvent>& events) {
@@ -383,7 +397,12 @@ int Daemon::run() {
     } else if (d.acq_done.load(std::memory_order_acquire)) {
       if (d.ring->read_regions().size() == 0) break;  // input ended (or stop) and everything is processed
     } else {
-      std::this_thread::sleep_for(std::chrono::milliseconds(1));
+      // Nothing to process: wait for the next block (1 ms at most, so signals, the tacho and the
+      // watchdog are still served when the input stalls).
+      std::unique_lock<std::mutex> lock(d.wake_mutex);
+      d.wake.wait_for(lock, std::chrono::milliseconds(1), [&d] {
+        return d.ring->fill_items() > 0 || d.acq_done.load(std::memory_order_acquire);
+      });
     }
 
     d.poll_tacho();
