@@ -455,6 +455,7 @@ PlotFile candidate_ladder(const diagnosis::DiagnoseResult& r) {
   p.legend_entry("passed, not the best", Style{kPassed}, true);
   p.legend_entry("rejected by the gate", Style{kRejected}, true);
   p.legend_entry("implausible fitted values", Style{kImplausible}, true);
+  p.legend_at = Panel::LegendAt::above;
   if (r.steps.empty()) p.annotate(0.0, 0.1, "no candidate was tried");
   Figure fig(kWidth, kTitle + 520.0, "Candidate ladder");
   fig.add(std::move(p), Rect{0, kTitle, kWidth, 520.0});

@@ -227,11 +227,14 @@ void Figure::add(Panel panel, Rect outer) { panels_.push_back({std::move(panel),
 
 namespace {
 
-Layout layout_of(const Rect& o, bool categorical, bool heat) {
+constexpr double kLegendRow = 20.0;  // extra top margin for a legend above the plotting area
+
+Layout layout_of(const Panel& p, const Rect& o) {
   Layout L;
-  const double right = kRight + (heat ? kColourBar : 0.0);
-  const double bottom = categorical ? kCategoryBottom : kBottom;
-  L.plot = {o.x + kLeft, o.y + kTop, std::max(10.0, o.w - kLeft - right), std::max(10.0, o.h - kTop - bottom)};
+  const double right = kRight + (p.has_heatmap() ? kColourBar : 0.0);
+  const double bottom = p.categorical() ? kCategoryBottom : kBottom;
+  const double top = kTop + (p.legend && p.legend_at == Panel::LegendAt::above ? kLegendRow : 0.0);
+  L.plot = {o.x + kLeft, o.y + top, std::max(10.0, o.w - kLeft - right), std::max(10.0, o.h - top - bottom)};
   return L;
 }
 
@@ -269,7 +272,7 @@ std::pair<Scale, Scale> Figure::scales(std::size_t panel_index) const {
   if (cat) xl = {-0.5, static_cast<double>(p.bars_.size()) - 0.5};
   else xl = limits(rx, p.x_min, p.x_max, p.x_log, !p.heat_);
   yl = limits(ry, p.y_min, p.y_max, p.y_log, !p.heat_);
-  const Layout L = layout_of(pl.outer, cat, p.heat_.has_value());
+  const Layout L = layout_of(p, pl.outer);
   Scale sx{xl.first, xl.second, L.plot.x, L.plot.x + L.plot.w, p.x_log && !cat};
   Scale sy{yl.first, yl.second, L.plot.y + L.plot.h, L.plot.y, p.y_log};
   return {sx, sy};
@@ -289,7 +292,7 @@ std::string Figure::svg() const {
     const Rect& outer = panels_[pi].outer;
     const bool cat = p.categorical();
     const auto [sx, sy] = scales(pi);
-    const Layout L = layout_of(outer, cat, p.heat_.has_value());
+    const Layout L = layout_of(p, outer);
     const Rect& a = L.plot;
     const std::string clip = "clip" + std::to_string(pi);
     o << "<g class=\"panel\">\n";
@@ -463,7 +466,8 @@ std::string Figure::svg() const {
     o << "<rect x=\"" << px(a.x) << "\" y=\"" << px(a.y) << "\" width=\"" << px(a.w) << "\" height=\"" << px(a.h)
       << "\" fill=\"none\" stroke=\"#333333\" stroke-width=\"1\"/>\n";
     if (!p.title.empty())
-      o << "<text class=\"ptitle\" x=\"" << px(a.x) << "\" y=\"" << px(a.y - 8) << "\" font-size=\"13\">" << escape_xml(p.title) << "</text>\n";
+      o << "<text class=\"ptitle\" x=\"" << px(a.x) << "\" y=\""
+        << px(a.y - 8 - (p.legend && p.legend_at == Panel::LegendAt::above ? kLegendRow : 0.0)) << "\" font-size=\"13\">" << escape_xml(p.title) << "</text>\n";
     if (!p.x_label.empty())
       o << "<text class=\"xlabel\" x=\"" << px(a.x + a.w / 2) << "\" y=\"" << px(outer.y + outer.h - 8) << "\" text-anchor=\"middle\">"
         << escape_xml(p.x_label) << "</text>\n";
@@ -485,7 +489,27 @@ std::string Figure::svg() const {
     for (const auto& s : p.segs_)
       if (!s.label.empty()) items.push_back({s.label, s.style, false, false});
     for (const auto& e : p.entries_) items.push_back({e.label, e.style, e.swatch, false});
-    if (p.legend && !items.empty()) {
+    // The glyph of a legend entry, 22 px wide from x, centred on y.
+    auto glyph = [&](const Item& it, double x, double y) {
+      if (it.swatch)
+        o << "<rect x=\"" << px(x + 2) << "\" y=\"" << px(y - 5) << "\" width=\"18\" height=\"10\" fill=\"" << escape_xml(it.style.colour) << "\"/>";
+      else if (it.dot)
+        o << "<circle cx=\"" << px(x + 11) << "\" cy=\"" << px(y) << "\" r=\"3\" fill=\"" << escape_xml(it.style.colour) << "\"/>";
+      else
+        o << "<line x1=\"" << px(x) << "\" y1=\"" << px(y) << "\" x2=\"" << px(x + 22) << "\" y2=\"" << px(y) << "\"" << stroke_attrs(it.style) << "/>";
+    };
+    if (p.legend && !items.empty() && p.legend_at == Panel::LegendAt::above) {
+      // One row, left-aligned, between the panel title and the plotting area.
+      double x = a.x;
+      const double y = a.y - 10.0;
+      o << "<g class=\"legend\">";
+      for (const auto& it : items) {
+        glyph(it, x, y);
+        o << "<text x=\"" << px(x + 26) << "\" y=\"" << px(y) << "\" dy=\"0.35em\" font-size=\"11\">" << escape_xml(it.label) << "</text>";
+        x += 26.0 + 6.6 * static_cast<double>(it.label.size()) + 16.0;
+      }
+      o << "</g>\n";
+    } else if (p.legend && !items.empty()) {
       std::size_t chars = 0;
       for (const auto& it : items) chars = std::max(chars, it.label.size());
       const double lw = 36.0 + 6.6 * static_cast<double>(chars), lh = 8.0 + 16.0 * static_cast<double>(items.size());
@@ -496,16 +520,9 @@ std::string Figure::svg() const {
       o << "<g class=\"legend\"><rect x=\"" << px(lx) << "\" y=\"" << px(ly) << "\" width=\"" << px(lw) << "\" height=\"" << px(lh)
         << "\" fill=\"#ffffff\" fill-opacity=\"0.85\" stroke=\"#999999\" stroke-width=\"0.8\"/>\n";
       for (std::size_t k = 0; k < items.size(); ++k) {
-        const auto& it = items[k];
         const double y = ly + 12.0 + 16.0 * static_cast<double>(k);
-        if (it.swatch)
-          o << "<rect x=\"" << px(lx + 8) << "\" y=\"" << px(y - 5) << "\" width=\"18\" height=\"10\" fill=\"" << escape_xml(it.style.colour) << "\"/>";
-        else if (it.dot)
-          o << "<circle cx=\"" << px(lx + 17) << "\" cy=\"" << px(y) << "\" r=\"3\" fill=\"" << escape_xml(it.style.colour) << "\"/>";
-        else
-          o << "<line x1=\"" << px(lx + 6) << "\" y1=\"" << px(y) << "\" x2=\"" << px(lx + 28) << "\" y2=\"" << px(y) << "\""
-            << stroke_attrs(it.style) << "/>";
-        o << "<text x=\"" << px(lx + 32) << "\" y=\"" << px(y) << "\" dy=\"0.35em\" font-size=\"11\">" << escape_xml(it.label) << "</text>\n";
+        glyph(items[k], lx + 6, y);
+        o << "<text x=\"" << px(lx + 32) << "\" y=\"" << px(y) << "\" dy=\"0.35em\" font-size=\"11\">" << escape_xml(items[k].label) << "</text>\n";
       }
       o << "</g>\n";
     }

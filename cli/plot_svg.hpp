@@ -72,7 +72,9 @@ class Panel {
   std::optional<double> x_min, x_max, y_min, y_max;  ///< fixed limits; otherwise from the data
   bool x_integer_ticks = false;  ///< keep only whole-number x ticks (rounds, runs)
   bool legend = true;
-  enum class LegendAt { top_right, top_left, bottom_right, bottom_left } legend_at = LegendAt::top_right;
+  /// Where the legend goes: a box inside a corner of the plotting area, or one row between the panel
+  /// title and the plotting area (`above`, for panels whose data fill every corner).
+  enum class LegendAt { top_right, top_left, bottom_right, bottom_left, above } legend_at = LegendAt::top_right;
 
   /// A line through (x[i], y[i]); non-drawable points leave gaps. `markers`: also a dot per point.
   void line(std::vector<double> x, std::vector<double> y, Style style, std::string label = "", bool markers = false);
@@ -97,6 +99,7 @@ class Panel {
                std::vector<double> values, double vmin, double vmax, std::string colour_label);
 
   bool categorical() const { return !bars_.empty(); }
+  bool has_heatmap() const { return heat_.has_value(); }
 
  private:
   friend class Figure;
