@@ -113,6 +113,7 @@ int run_compare(const std::vector<std::string>& argv, std::ostream& out, std::os
         plots::residual_scalogram(fitter, fit, rep),
         plots::envelopes(fitter, fit, rep),
         plots::backbones(rep),
+        plots::residual_where(rep),
         plots::residual_spectra({{"model " + plots::effect_list(fit.effects), &rep}}),
     };
     plots::write_all(*plot_dir, "ridgewatch compare: " + l.path, text.str(), files);

@@ -123,6 +123,7 @@ int run_diagnose(const std::vector<std::string>& argv, std::ostream& out, std::o
         plots::residual_scalogram(fitter, r.final_fit, r.final_report),
         plots::envelopes(fitter, r.final_fit, r.final_report),
         plots::backbones(r.final_report, !r.verdict.empty() && !r.rounds.empty() ? &r.rounds.front().report : nullptr),
+        plots::residual_where(r.final_report),
         plots::residual_spectra(spectra),
         plots::candidate_ladder(r),
         plots::error_fall(r, history),

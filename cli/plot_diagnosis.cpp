@@ -374,6 +374,38 @@ PlotFile backbones(const ResidualReport& rep, const ResidualReport* start) {
           fig.svg()};
 }
 
+PlotFile residual_where(const ResidualReport& rep) {
+  const double h = 400.0, w = kWidth / 2;
+  Figure fig(kWidth, kTitle + h, "Where the residual is: time after the impact and impact amplitude");
+  Panel t;
+  t.title = "held-out excess per " + num(rep.dt_ms) + " ms after the impact";
+  t.x_label = "time after the impact (ms)";
+  t.y_label = "excess over the noise floor";
+  std::vector<double> tx, ty;
+  for (std::size_t b = 0; b < rep.excess_vs_time.size(); ++b) {
+    tx.push_back((static_cast<double>(b) + 0.5) * rep.dt_ms);
+    ty.push_back(rep.excess_vs_time[b]);
+  }
+  t.line(tx, ty, Style{"#1f77b4", 1.5, Dash::solid, 1.0}, "", true);
+  t.hline(0.0, kFloor, "noise floor (0)");
+  t.legend = false;
+  Panel a;
+  a.title = "held-out impacts";
+  a.x_label = "fitted impact force / nominal";
+  a.y_label = "excess over the noise floor";
+  a.points(rep.impact_amplitude, rep.impact_excess, Style{"#d62728", 1.0, Dash::solid, 1.0}, "", 3.5);
+  a.hline(0.0, kFloor, "noise floor (0)");
+  a.legend = false;
+  fig.add(std::move(t), Rect{0, kTitle, w, h});
+  fig.add(std::move(a), Rect{w, kTitle, w, h});
+  return {"residual-where.svg", "Residual vs time after the impact and vs amplitude",
+          "Left: excess right after the onset points to the impact pulse or the onset; growing later in the decay "
+          "points to damping or frequency (the model decays too fast or too slow, or drifts in phase). Right: excess "
+          "that grows with the impact force points to a nonlinearity (stiffness, quadratic damping, contact loss); "
+          "excess at weak impacts to dry friction; one or two outliers to a disturbed impact.",
+          fig.svg()};
+}
+
 PlotFile residual_spectra(const std::vector<std::pair<std::string, const ResidualReport*>>& steps) {
   Panel p;
   p.title = "mean periodogram of the held-out residual / σ² (1 = white noise floor)";

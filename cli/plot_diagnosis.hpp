@@ -11,6 +11,7 @@
 //   envelopes.svg           ln envelope |W(t, f0)| of a weak and a strong held-out impact, measured vs
 //                           model, with the noise floor
 //   backbones.svg           damping and frequency vs amplitude, measured vs model
+//   residual-where.svg      held-out excess vs time after the impact, and per impact vs its amplitude
 //   residual-spectrum.svg   residual spectrum per step (diagnose: per round) with the marker lines
 //   candidate-ladder.svg    (diagnose) held-out excess after each candidate, by round and outcome
 //   error-fall.svg          (diagnose) held-out excess per round, and per run of the --history file
@@ -48,6 +49,8 @@ PlotFile residual_scalogram(const diagnosis::ModelFitter& fitter, const diagnosi
 PlotFile envelopes(const diagnosis::ModelFitter& fitter, const diagnosis::FitResult& fit, const diagnosis::ResidualReport& rep);
 /// `start` (optional): the starting model's report, whose model backbone is drawn as well.
 PlotFile backbones(const diagnosis::ResidualReport& rep, const diagnosis::ResidualReport* start = nullptr);
+/// Held-out excess per ms after the impact and per impact against the fitted impact force.
+PlotFile residual_where(const diagnosis::ResidualReport& rep);
 /// One curve per step: (label, report).
 PlotFile residual_spectra(const std::vector<std::pair<std::string, const diagnosis::ResidualReport*>>& steps);
 PlotFile candidate_ladder(const diagnosis::DiagnoseResult& r);

@@ -82,7 +82,7 @@ class PlotsCli : public ::testing::Test {
 std::filesystem::path PlotsCli::dir_;
 
 const std::vector<std::string> kComparePlots = {"impacts.svg", "residual-scalogram.svg", "envelopes.svg", "backbones.svg",
-                                                "residual-spectrum.svg"};
+                                                "residual-where.svg", "residual-spectrum.svg"};
 
 }  // namespace
 
