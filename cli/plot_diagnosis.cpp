@@ -219,6 +219,11 @@ PlotFile residual_scalogram(const ModelFitter& fitter, const FitResult& fit, con
       t_hi = std::max(t_hi, t.back());
     }
   }
+  double t_end = t_hi;  // the earliest window end: beyond it fewer impacts contribute
+  for (std::size_t w : held) {
+    const auto t = time_ms(fitter, fit, w);
+    if (!t.empty()) t_end = std::min(t_end, t.back());
+  }
   const double t0 = std::floor(t_lo / kDtMs) * kDtMs;
   const auto cols = static_cast<std::size_t>(std::max(1.0, std::ceil((t_hi - t0) / kDtMs)));
   std::vector<double> acc(kRows * cols, 0.0), cnt(kRows * cols, 0.0);
@@ -264,6 +269,18 @@ PlotFile residual_scalogram(const ModelFitter& fitter, const FitResult& fit, con
             "RMS |W| / white-noise level (1 = noise floor)");
   for (const auto& [name, f] : rep.markers)
     if (f >= f_lo && f <= f_hi) p.hline(f, Style{name == "f0" ? "#ffffff" : "#ff9896", 1.0, Dash::dashed, 0.9}, name);
+  // Cone of influence: within two kernel time sds (η0 / (2π f), paper Eq. 4 scale) of a window edge
+  // the wavelet reaches past the window, where the residual is taken as zero, so |W| reads low there.
+  std::vector<double> cone_f, cone_left, cone_right;
+  for (double f : cfg.frequencies_hz) {
+    const double two_sd_ms = 2000.0 * dsp::MorletCwt<double>::kernel_time_sd_s(kEta0, f);
+    cone_f.push_back(f);
+    cone_left.push_back(t_lo + two_sd_ms);
+    cone_right.push_back(t_end - two_sd_ms);
+  }
+  const Style cone{"#ffffff", 1.2, Dash::dotted, 0.8};
+  p.line(cone_left, cone_f, cone);
+  p.line(cone_right, cone_f, cone);
   p.legend = false;
   Figure fig(kWidth, kTitle + 520.0, "Residual scalogram: where in time and frequency the model misses");
   fig.add(std::move(p), Rect{0, kTitle, kWidth, 520.0});
@@ -271,8 +288,8 @@ PlotFile residual_scalogram(const ModelFitter& fitter, const FitResult& fit, con
           "Bright bands are residual the model does not explain: on a marker f0 ± k·f_z it points to a mesh-periodic "
           "modulation (stiffness variation, transmission error), on k·f_z to a mesh-synchronous signal, elsewhere to a "
           "second mode or a hum; a band that grows or fades with time after the impact points to damping or "
-          "stiffness nonlinearity. Near the window ends, low frequencies see the window edge (the wavelet is "
-          "several ms long there).",
+          "stiffness nonlinearity. Outside the dotted white curves (the cone of influence) the wavelet reaches "
+          "past the fit window and the level reads low.",
           fig.svg()};
 }
 

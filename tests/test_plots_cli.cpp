@@ -121,6 +121,10 @@ TEST_F(PlotsCli, DiagnoseWritesLadderWithOneBarPerCandidate) {
   EXPECT_NE(ladder.find("target 0.1"), std::string::npos);
   // One spectrum curve per round: the starting model and one per accepted effect.
   EXPECT_EQ(count(slurp(out / "residual-spectrum.svg"), "<path class=\"series\""), j["verdict"].size() + 1);
+  // With an accepted effect, the impact plot also shows the starting model.
+  if (!j["verdict"].empty()) {
+    EXPECT_NE(slurp(out / "impacts.svg").find("starting model"), std::string::npos);
+  }
   // The history panel appears once the history file has a run on this recording.
   EXPECT_NE(slurp(out / "error-fall.svg").find("history: runs on this file"), std::string::npos);
 }
