@@ -7,6 +7,7 @@
 #include <limits>
 #include <nlohmann/json.hpp>
 #include <numeric>
+#include <optional>
 #include <sstream>
 #include <system_error>
 
@@ -173,7 +174,12 @@ PlotFile impacts(const ModelFitter& fitter, const FitResult& fit, const FitResul
   for (const auto& [w, what] : pick) {
     const auto t = time_ms(fitter, fit, w);
     const auto& win = fitter.segmentation().windows[w];
+    // The window exactly: no room wasted by rounding the limits.
+    const std::optional<double> t_first = t.size() >= 2 ? std::optional<double>(t.front()) : std::nullopt;
+    const std::optional<double> t_last = t.size() >= 2 ? std::optional<double>(t.back()) : std::nullopt;
     Panel s;
+    s.x_min = t_first;
+    s.x_max = t_last;
     s.title = "held-out impact at " + num(win.onset_s, 4) + " s (" + what + ": excess " + num(power(w) - 1.0) + ")";
     s.y_label = "output";
     s.line(t, measured(fitter, fit, w), kMeasured, "measured");
@@ -182,6 +188,8 @@ PlotFile impacts(const ModelFitter& fitter, const FitResult& fit, const FitResul
     s.line(t, fit.model[w], kModel, model_label(fit));
     fig.add(std::move(s), Rect{0, y0, kWidth, sig_h});
     Panel r;
+    r.x_min = t_first;
+    r.x_max = t_last;
     r.y_label = "residual / σ";
     r.x_label = "time after the impact (ms)";
     r.hline(0.0, Style{"#555555", 0.8, Dash::solid, 1.0});
