@@ -141,7 +141,8 @@ void write_all(const std::filesystem::path& dir, const std::string& page_title, 
                const std::vector<PlotFile>& files) {
   for (const auto& f : files) write_file(dir / f.file, f.svg);
   std::ostringstream h;
-  h << "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\">\n<title>" << html_escape(page_title) << "</title>\n"
+  // HTML5 that is also well-formed XML (void elements closed with "/>").
+  h << "<!DOCTYPE html>\n<html lang=\"en\">\n<head>\n<meta charset=\"utf-8\"/>\n<title>" << html_escape(page_title) << "</title>\n"
     << "<style>\nbody { font-family: DejaVu Sans, Arial, sans-serif; max-width: 1000px; margin: 1em auto; padding: 0 1em; color: #222; }\n"
     << "img { max-width: 100%; height: auto; border: 1px solid #ccc; }\n"
     << "pre { background: #f5f5f5; padding: 0.6em; overflow-x: auto; font-size: 12px; }\n"
@@ -151,7 +152,7 @@ void write_all(const std::filesystem::path& dir, const std::string& page_title, 
   h << "</ul>\n";
   for (const auto& f : files)
     h << "<figure id=\"" << html_escape(f.file) << "\">\n<h2>" << html_escape(f.title) << "</h2>\n<a href=\"" << html_escape(f.file)
-      << "\"><img src=\"" << html_escape(f.file) << "\" alt=\"" << html_escape(f.title) << "\"></a>\n<figcaption>"
+      << "\"><img src=\"" << html_escape(f.file) << "\" alt=\"" << html_escape(f.title) << "\"/></a>\n<figcaption>"
       << html_escape(f.caption) << "</figcaption>\n</figure>\n";
   h << "</body>\n</html>\n";
   write_file(dir / "index.html", h.str());

@@ -69,6 +69,7 @@ class PlotsCli : public ::testing::Test {
     const std::string html = slurp(out / "index.html");
     ASSERT_FALSE(html.empty());
     for (const auto& name : svgs) EXPECT_NE(html.find("<img src=\"" + name + "\""), std::string::npos) << name;
+    EXPECT_EQ(ridgewatch::test::xml_problem(html), "");  // HTML5 written as well-formed XML
     // Self-contained: no scripts, no external resources.
     EXPECT_EQ(html.find("<script"), std::string::npos);
     EXPECT_EQ(html.find("http://"), std::string::npos);

@@ -41,6 +41,12 @@ inline std::string xml_problem(const std::string& xml) {
       i = e + 2;
       continue;
     }
+    if (xml.compare(i, 9, "<!DOCTYPE") == 0) {
+      const auto e = xml.find('>', i);
+      if (e == std::string::npos || roots > 0) return "bad DOCTYPE";
+      i = e + 1;
+      continue;
+    }
     if (xml.compare(i, 4, "<!--") == 0) {
       const auto e = xml.find("-->", i);
       if (e == std::string::npos) return "unclosed comment";
