@@ -1,12 +1,11 @@
-// `ridgewatch compare --rig RIG.yaml FILE [--with EFFECT]... [--json] [--plots DIR]`: fits the gear-pair model
-// (core/diagnosis/model_fit.hpp) to the impacts of a recording and shows where it fails: fitted c0 vs
+// `ridgewatch compare --rig RIG.yaml FILE [--with EFFECT]... [--json] [--plots DIR]`: fits the gear-pair
+// model (core/diagnosis/model_fit.hpp) to the impacts of a recording and shows where it fails: fitted c0 vs
 // the rig's nominal (f0 gap), held-out excess over the noise floor, fit %, residual vs time after the
 // impact and per impact, residual spectrum with f0 ± k·f_z / k·f_z markers, backbones measured vs model,
 // whiteness, sensor faults. Text on stdout by default, one JSON object with --json. --plots DIR also
 // writes SVG plots and DIR/index.html (cli/plot_diagnosis.hpp).
 #include <cmath>
 #include <cstdio>
-#include <optional>
 #include <filesystem>
 #include <optional>
 #include <ostream>
@@ -28,7 +27,7 @@ void write_text(std::ostream& out, const diag::Loaded& l, const diagnosis::FitRe
   const double c0_nom = l.rig.rig.mean_mesh_stiffness_n_per_m;
   const auto& c0 = fit.estimates[0];
   const double f0_nom = l.rig.rig.natural_frequency_hz();
-  out << "compare: " << l.path << " with model [" ;
+  out << "compare: " << l.path << " with model [";
   for (std::size_t i = 0; i < l.effects.size(); ++i) out << (i ? ", " : "") << l.effects[i];
   out << "] on " << l.seg.windows.size() << " impacts (" << (l.seg.windows.size() + 1) / 2 << " fitted, "
       << l.seg.windows.size() / 2 << " held out)\n";

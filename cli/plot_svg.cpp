@@ -465,9 +465,10 @@ std::string Figure::svg() const {
     // Frame, titles, axis labels.
     o << "<rect x=\"" << px(a.x) << "\" y=\"" << px(a.y) << "\" width=\"" << px(a.w) << "\" height=\"" << px(a.h)
       << "\" fill=\"none\" stroke=\"#333333\" stroke-width=\"1\"/>\n";
-    if (!p.title.empty())
-      o << "<text class=\"ptitle\" x=\"" << px(a.x) << "\" y=\""
-        << px(a.y - 8 - (p.legend && p.legend_at == Panel::LegendAt::above ? kLegendRow : 0.0)) << "\" font-size=\"13\">" << escape_xml(p.title) << "</text>\n";
+    if (!p.title.empty()) {
+      const double title_y = a.y - 8 - (p.legend && p.legend_at == Panel::LegendAt::above ? kLegendRow : 0.0);
+      o << "<text class=\"ptitle\" x=\"" << px(a.x) << "\" y=\"" << px(title_y) << "\" font-size=\"13\">" << escape_xml(p.title) << "</text>\n";
+    }
     if (!p.x_label.empty())
       o << "<text class=\"xlabel\" x=\"" << px(a.x + a.w / 2) << "\" y=\"" << px(outer.y + outer.h - 8) << "\" text-anchor=\"middle\">"
         << escape_xml(p.x_label) << "</text>\n";
