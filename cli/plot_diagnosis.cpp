@@ -359,7 +359,8 @@ PlotFile envelopes(const ModelFitter& fitter, const FitResult& fit, const Residu
           "weak and strong impacts. Curvature, or slopes that differ with the amplitude, point to amplitude-dependent "
           "damping (dry friction, quadratic damping); a ripple points to a beat with a second line. Below the noise "
           "floor the measured envelope flattens out: only the part above it carries information. The first ~1 ms "
-          "after the onset is the impact smeared by the wavelet; the window's last 2 kernel widths are not shown.",
+          "after the onset is the impact smeared by the wavelet; the last two kernel sds of the window (2.6 ms at 860 Hz) "
+          "are not shown.",
           fig.svg()};
 }
 
