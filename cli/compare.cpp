@@ -1,14 +1,19 @@
-// `ridgewatch compare --rig RIG.yaml FILE [--with EFFECT]... [--json]`: fits the gear-pair model
-// (core/diagnosis/model_fit.hpp) to the impacts of a recording and shows where it fails: fitted c0 vs
+// `ridgewatch compare --rig RIG.yaml FILE [--with EFFECT]... [--json] [--plots DIR]`: fits the gear-pair
+// model (core/diagnosis/model_fit.hpp) to the impacts of a recording and shows where it fails: fitted c0 vs
 // the rig's nominal (f0 gap), held-out excess over the noise floor, fit %, residual vs time after the
 // impact and per impact, residual spectrum with f0 ± k·f_z / k·f_z markers, backbones measured vs model,
-// whiteness, sensor faults. Text on stdout by default, one JSON object with --json.
+// whiteness, sensor faults. Text on stdout by default, one JSON object with --json. --plots DIR also
+// writes SVG plots and DIR/index.html (cli/plot_diagnosis.hpp).
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
+#include <optional>
 #include <ostream>
+#include <sstream>
 
 #include "cli/commands.hpp"
 #include "cli/diagnosis_common.hpp"
+#include "cli/plot_diagnosis.hpp"
 
 namespace ridgewatch::cli {
 
@@ -16,11 +21,50 @@ namespace {
 
 std::string f(double v, int d = 4) { return diagnosis::format_number(v, d); }
 
+// The text report (stdout without --json; the head of the plots' index.html).
+void write_text(std::ostream& out, const diag::Loaded& l, const diagnosis::FitResult& fit, const diagnosis::ResidualReport& rep,
+                const std::vector<std::string>& problems) {
+  const double c0_nom = l.rig.rig.mean_mesh_stiffness_n_per_m;
+  const auto& c0 = fit.estimates[0];
+  const double f0_nom = l.rig.rig.natural_frequency_hz();
+  out << "compare: " << l.path << " with model [";
+  for (std::size_t i = 0; i < l.effects.size(); ++i) out << (i ? ", " : "") << l.effects[i];
+  out << "] on " << l.seg.windows.size() << " impacts (" << (l.seg.windows.size() + 1) / 2 << " fitted, "
+      << l.seg.windows.size() / 2 << " held out)\n";
+  out << "  c0     " << f(c0.value, 5) << " N/m (95 %: " << f(c0.ci95_lo, 5) << " .. " << f(c0.ci95_hi, 5) << "), nominal "
+      << f(c0_nom, 5) << ": " << f(100.0 * (c0.value / c0_nom - 1.0), 3) << " %  ->  f0 " << f(rep.f0_hz, 5)
+      << " Hz vs " << f(f0_nom, 5) << " Hz from the rig\n";
+  for (std::size_t i = 1; i < fit.estimates.size(); ++i) {
+    const auto& e = fit.estimates[i];
+    out << "  " << e.name << " = " << f(e.value) << " (95 %: " << f(e.ci95_lo) << " .. " << f(e.ci95_hi) << ")"
+        << (e.at_bound ? " AT BOUND" : "") << "\n";
+  }
+  out << "  held-out excess over the noise floor: " << f(fit.heldout_excess, 3) << " (0 = nothing left to explain), fit "
+      << f(fit.fit_percent, 4) << " %\n";
+  out << "  residual vs time after impact (excess per ms):";
+  for (double v : rep.excess_vs_time) out << " " << (std::isfinite(v) ? f(v, 2) : "-");
+  out << "\n  residual lines (level / noise floor):";
+  if (rep.peaks.empty()) out << " none";
+  for (const auto& p : rep.peaks) out << " " << f(p.f_hz, 4) << " Hz x" << f(p.level, 3) << (p.marker.empty() ? "" : " [" + p.marker + "]");
+  out << "\n  whiteness: Ljung-Box Q = " << f(rep.ljung_box_q, 3) << " (99.9 % limit " << f(rep.ljung_box_limit, 3) << "): "
+      << (rep.white ? "white" : "NOT white") << "\n";
+  out << "  backbone (amplitude %: zeta measured/model, f measured/model Hz):\n";
+  for (std::size_t k = 0; k < rep.measured.amplitude_rel.size(); ++k) {
+    if (!std::isfinite(rep.measured.zeta[k])) continue;
+    out << "    " << f(100 * rep.measured.amplitude_rel[k], 2) << " %: " << f(rep.measured.zeta[k], 3) << " / "
+        << (std::isfinite(rep.model.zeta[k]) ? f(rep.model.zeta[k], 3) : "-") << ", " << f(rep.measured.f_hz[k], 5) << " / "
+        << (std::isfinite(rep.model.f_hz[k]) ? f(rep.model.f_hz[k], 5) : "-") << "\n";
+  }
+  for (const auto& p : problems) out << "  sensor: " << p << "\n";
+}
+
 }  // namespace
 
 int run_compare(const std::vector<std::string>& argv, std::ostream& out, std::ostream& err) {
-  const Args args(argv, {"--rig", "--with", "--channel", "--rate"}, {"--json"});
+  const Args args(argv, {"--rig", "--with", "--channel", "--rate", "--plots"}, {"--json"});
   diag::Loaded l = diag::load(args);
+  std::optional<std::filesystem::path> plot_dir;  // made (or refused) before the fit
+  if (const auto d = args.value("--plots")) plot_dir = plots::prepare_dir(*d);
   const diagnosis::ModelFitter fitter(l.y, l.seg, l.rig.rig);
   const diagnosis::FitResult fit = fitter.fit(l.effects);
   const diagnosis::ResidualReport rep = diagnosis::analyse_residual(fitter, fit);
@@ -53,41 +97,26 @@ int run_compare(const std::vector<std::string>& argv, std::ostream& out, std::os
     j["residual"] = diag::report_json(rep);
     j["sensor_problems"] = problems;
     out << j.dump() << "\n";
-    return kExitOk;
   }
-  out << "compare: " << l.path << " with model [" ;
-  for (std::size_t i = 0; i < l.effects.size(); ++i) out << (i ? ", " : "") << l.effects[i];
-  out << "] on " << l.seg.windows.size() << " impacts (" << (l.seg.windows.size() + 1) / 2 << " fitted, "
-      << l.seg.windows.size() / 2 << " held out)\n";
-  out << "  c0     " << f(c0.value, 5) << " N/m (95 %: " << f(c0.ci95_lo, 5) << " .. " << f(c0.ci95_hi, 5) << "), nominal "
-      << f(c0_nom, 5) << ": " << f(100.0 * (c0.value / c0_nom - 1.0), 3) << " %  ->  f0 " << f(rep.f0_hz, 5)
-      << " Hz vs " << f(f0_nom, 5) << " Hz from the rig\n";
-  for (std::size_t i = 1; i < fit.estimates.size(); ++i) {
-    const auto& e = fit.estimates[i];
-    out << "  " << e.name << " = " << f(e.value) << " (95 %: " << f(e.ci95_lo) << " .. " << f(e.ci95_hi) << ")"
-        << (e.at_bound ? " AT BOUND" : "") << "\n";
-  }
-  out << "  held-out excess over the noise floor: " << f(fit.heldout_excess, 3) << " (0 = nothing left to explain), fit "
-      << f(fit.fit_percent, 4) << " %\n";
-  out << "  residual vs time after impact (excess per ms):";
-  for (double v : rep.excess_vs_time) out << " " << (std::isfinite(v) ? f(v, 2) : "-");
-  out << "\n  residual lines (level / noise floor):";
-  if (rep.peaks.empty()) out << " none";
-  for (const auto& p : rep.peaks) out << " " << f(p.f_hz, 4) << " Hz x" << f(p.level, 3) << (p.marker.empty() ? "" : " [" + p.marker + "]");
-  out << "\n  whiteness: Ljung-Box Q = " << f(rep.ljung_box_q, 3) << " (99.9 % limit " << f(rep.ljung_box_limit, 3) << "): "
-      << (rep.white ? "white" : "NOT white") << "\n";
-  out << "  backbone (amplitude %: zeta measured/model, f measured/model Hz):\n";
-  for (std::size_t k = 0; k < rep.measured.amplitude_rel.size(); ++k) {
-    if (!std::isfinite(rep.measured.zeta[k])) continue;
-    out << "    " << f(100 * rep.measured.amplitude_rel[k], 2) << " %: " << f(rep.measured.zeta[k], 3) << " / "
-        << (std::isfinite(rep.model.zeta[k]) ? f(rep.model.zeta[k], 3) : "-") << ", " << f(rep.measured.f_hz[k], 5) << " / "
-        << (std::isfinite(rep.model.f_hz[k]) ? f(rep.model.f_hz[k], 5) : "-") << "\n";
-  }
-  for (const auto& p : problems) out << "  sensor: " << p << "\n";
+  std::ostringstream text;
+  write_text(text, l, fit, rep, problems);
+  if (!args.has("--json")) out << text.str();
   if (!l.ignored.empty()) {
     err << "compare: rig model.effects not fitted (sensor/kinematics):";
     for (const auto& n : l.ignored) err << " " << n;
     err << "\n";
+  }
+  if (plot_dir) {
+    const std::vector<plots::PlotFile> files = {
+        plots::impacts(fitter, fit),
+        plots::residual_scalogram(fitter, fit, rep),
+        plots::envelopes(fitter, fit, rep),
+        plots::backbones(rep),
+        plots::residual_where(rep),
+        plots::residual_spectra({{"model " + plots::effect_list(fit.effects), &rep}}),
+    };
+    plots::write_all(*plot_dir, "ridgewatch compare: " + l.path, text.str(), files);
+    err << "compare: wrote " << files.size() << " plots and " << (*plot_dir / "index.html").string() << "\n";
   }
   return kExitOk;
 }

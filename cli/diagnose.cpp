@@ -1,16 +1,22 @@
-// `ridgewatch diagnose --rig RIG.yaml FILE [--with EFFECT]... [--json] [--history FILE.jsonl]`: the
+// `ridgewatch diagnose --rig RIG.yaml FILE [--with EFFECT]... [--json] [--history FILE.jsonl] [--plots DIR]`: the
 // missing-effect loop (core/diagnosis/diagnose.hpp). Text by default, one JSON object with --json.
 // --history appends one JSON line per run (time of run is not recorded: the line is a function of the
 // inputs) with the file, model, verdict and excess before/after, so repeated runs on the same data
 // form the "watch the error fall" table. --max-impacts N (default 16): runs of 4 consecutive impacts
-// spread over the record.
+// spread over the record. --plots DIR also writes SVG plots of the final model, the residual spectrum
+// per round, the candidate ladder and the error per round (and per --history run), gathered by
+// DIR/index.html (cli/plot_diagnosis.hpp).
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <fstream>
+#include <optional>
 #include <ostream>
+#include <sstream>
 
 #include "cli/commands.hpp"
 #include "cli/diagnosis_common.hpp"
+#include "cli/plot_diagnosis.hpp"
 
 namespace ridgewatch::cli {
 
@@ -21,8 +27,10 @@ std::string g(double v, int d = 3) { return diagnosis::format_number(v, d); }
 }  // namespace
 
 int run_diagnose(const std::vector<std::string>& argv, std::ostream& out, std::ostream& err) {
-  const Args args(argv, {"--rig", "--with", "--channel", "--rate", "--history", "--max-impacts"}, {"--json"});
+  const Args args(argv, {"--rig", "--with", "--channel", "--rate", "--history", "--max-impacts", "--plots"}, {"--json"});
   diag::Loaded l = diag::load(args);
+  std::optional<std::filesystem::path> plot_dir;  // made (or refused) before the fits
+  if (const auto d = args.value("--plots")) plot_dir = plots::prepare_dir(*d);
   // Default 16 impacts (8 fitted, 8 held out, as the prototype of DESIGN.md): each candidate refit
   // costs ~0.1-1 s per 16 impacts; more impacts sharpen the gate but cost linearly.
   l.seg = diagnosis::subset_windows(l.seg, static_cast<std::size_t>(args.integer("--max-impacts", 16, 4, 100000)));
@@ -74,32 +82,55 @@ int run_diagnose(const std::vector<std::string>& argv, std::ostream& out, std::o
     h.close();
     if (!h) throw UsageError("--history: cannot append to " + *hist);
   }
-  if (args.has("--json")) {
-    out << j.dump() << "\n";
-    return kExitOk;
-  }
-  out << "diagnose: " << l.path << ", " << l.seg.windows.size() << " impacts; model [";
-  for (std::size_t i = 0; i < r.initial_effects.size(); ++i) out << (i ? ", " : "") << r.initial_effects[i];
-  out << "], held-out excess " << g(r.baseline_excess) << "\n";
+  if (args.has("--json")) out << j.dump() << "\n";
+  std::ostringstream text;
+  text << "diagnose: " << l.path << ", " << l.seg.windows.size() << " impacts; model [";
+  for (std::size_t i = 0; i < r.initial_effects.size(); ++i) text << (i ? ", " : "") << r.initial_effects[i];
+  text << "], held-out excess " << g(r.baseline_excess) << "\n";
   int round = 0;
   for (const auto& s : r.steps) {
     if (s.round != round) {
       round = s.round;
-      out << " round " << round << ":\n";
+      text << " round " << round << ":\n";
     }
-    out << "  " << (s.accepted ? "ACCEPT " : (s.passed ? "pass   " : "reject ")) << s.effect << ": excess "
-        << g(s.excess_before) << " -> " << g(s.excess_after) << " (need gain > " << g(s.required_gain, 2) << "), "
-        << g(100 * s.fraction_improved, 3) << " % impacts improve, dBIC " << g(s.delta_bic, 4)
-        << (s.plausible ? "" : ", implausible: " + s.plausibility) << "\n";
-    if (s.accepted) out << "      evidence: " << s.evidence << "\n";
+    text << "  " << (s.accepted ? "ACCEPT " : (s.passed ? "pass   " : "reject ")) << s.effect << ": excess "
+         << g(s.excess_before) << " -> " << g(s.excess_after) << " (need gain > " << g(s.required_gain, 2) << "), "
+         << g(100 * s.fraction_improved, 3) << " % impacts improve, dBIC " << g(s.delta_bic, 4)
+         << (s.plausible ? "" : ", implausible: " + s.plausibility) << "\n";
+    if (s.accepted) text << "      evidence: " << s.evidence << "\n";
   }
-  out << "verdict: ";
-  if (r.verdict.empty()) out << "nothing missing above the noise";
-  for (std::size_t i = 0; i < r.verdict.size(); ++i) out << (i ? " then " : "") << r.verdict[i];
-  out << "; final held-out excess " << g(r.final_excess) << ", fit " << g(r.final_fit_percent, 4) << " %\n";
-  out << "unexplained structured residual: " << (r.unexplained ? r.unexplained_where : "none") << "\n";
-  for (const auto& p : r.sensor_problems) out << "sensor: " << p << "\n";
-  (void)err;
+  text << "verdict: ";
+  if (r.verdict.empty()) text << "nothing missing above the noise";
+  for (std::size_t i = 0; i < r.verdict.size(); ++i) text << (i ? " then " : "") << r.verdict[i];
+  text << "; final held-out excess " << g(r.final_excess) << ", fit " << g(r.final_fit_percent, 4) << " %\n";
+  text << "unexplained structured residual: " << (r.unexplained ? r.unexplained_where : "none") << "\n";
+  for (const auto& p : r.sensor_problems) text << "sensor: " << p << "\n";
+  if (!args.has("--json")) out << text.str();
+  if (plot_dir) {
+    // The starting model's fit, for the "before" lines of the impact plot (only when something was
+    // accepted; the fit is deterministic, so it equals the one diagnose started from).
+    std::optional<diagnosis::FitResult> start;
+    if (!r.verdict.empty()) start = fitter.fit(r.initial_effects);
+    std::vector<std::pair<std::string, const diagnosis::ResidualReport*>> spectra;
+    for (std::size_t k = 0; k < r.rounds.size(); ++k)
+      spectra.push_back({(k == 0 ? "start " : "round " + std::to_string(k) + " ") + plots::effect_list(r.rounds[k].effects) +
+                             ", excess " + g(r.rounds[k].heldout_excess),
+                         &r.rounds[k].report});
+    if (spectra.empty()) spectra.push_back({"final " + plots::effect_list(r.final_fit.effects), &r.final_report});
+    const auto history = args.value("--history") ? plots::read_history(*args.value("--history"), l.path) : std::vector<plots::HistoryRun>{};
+    const std::vector<plots::PlotFile> files = {
+        plots::impacts(fitter, r.final_fit, start ? &*start : nullptr),
+        plots::residual_scalogram(fitter, r.final_fit, r.final_report),
+        plots::envelopes(fitter, r.final_fit, r.final_report),
+        plots::backbones(r.final_report, !r.verdict.empty() && !r.rounds.empty() ? &r.rounds.front().report : nullptr),
+        plots::residual_where(r.final_report),
+        plots::residual_spectra(spectra),
+        plots::candidate_ladder(r),
+        plots::error_fall(r, history),
+    };
+    plots::write_all(*plot_dir, "ridgewatch diagnose: " + l.path, text.str(), files);
+    err << "diagnose: wrote " << files.size() << " plots and " << (*plot_dir / "index.html").string() << "\n";
+  }
   return kExitOk;
 }
 

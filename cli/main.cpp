@@ -22,10 +22,13 @@ constexpr const char* kUsage =
     "  simulate --rig RIG.yaml [--effect NAME[:key=value,...]]... [--duration S] [--rate HZ] [--noise REL]\n"
     "           [--seed N] [--channels vib|vib,tacho] --out BASE   (or: simulate --list-effects)\n"
     "      simulate the gear-pair model; writes BASE.wav and BASE.truth.json\n"
-    "  compare --rig RIG.yaml FILE [--with EFFECT]... [--json]\n"
+    "  compare --rig RIG.yaml FILE [--with EFFECT]... [--json] [--plots DIR]\n"
     "      fit the gear-pair model to the impacts; fitted c0 vs nominal, held-out excess, where it fails\n"
     "  diagnose --rig RIG.yaml FILE [--with EFFECT]... [--json] [--history H.jsonl] [--max-impacts N]\n"
+    "           [--plots DIR]\n"
     "      find the missing model effect: try each catalogue effect, accept those that pass the gate\n"
+    "  --plots DIR (compare, diagnose): also write SVG plots and DIR/index.html, a page that shows them\n"
+    "      (DIR is created; if it cannot be created or written: exit 2 naming --plots and DIR)\n"
     "  --version  print the version\n"
     "exit codes: 0 ok, 2 bad usage or configuration, 3 bad input data\n";
 
