@@ -243,11 +243,12 @@ void ImpactDetector::run_chain(const std::vector<double>& x, std::vector<std::co
 }
 
 void ImpactDetector::restart(std::uint64_t first_index) {
-  seg_start_ = next_raw_ = next_block_ = first_index;
-  due_ = first_index + blk_ + kSpikeDelay;
+  seg_start_ = next_block_ = first_index;
   base_ = first_index - hist_;  // unsigned: n - base_ is the buffer position even if first_index < hist_
   std::fill(buf_x_.begin(), buf_x_.end(), 0.0f);
   std::fill(buf_r_.begin(), buf_r_.end(), 0.0f);
+  wp_ = buf_x_.data() + hist_;
+  due_p_ = wp_ + blk_ + kSpikeDelay;
   mad_sum_ = 0.0;
   mad_count_ = 0;
   lp_i_ = proto_;
@@ -316,12 +317,14 @@ std::uint64_t ImpactDetector::pop_onset() {
 void ImpactDetector::shift_buffer() {
   const std::uint64_t new_base = next_block_ - hist_;
   const auto from = static_cast<std::size_t>(new_base - base_);
-  const auto count = static_cast<std::size_t>(next_raw_ - new_base);
+  const auto count = static_cast<std::size_t>(next_index() - new_base);
   std::copy(buf_x_.begin() + static_cast<std::ptrdiff_t>(from), buf_x_.begin() + static_cast<std::ptrdiff_t>(from + count),
             buf_x_.begin());
   std::copy(buf_r_.begin() + static_cast<std::ptrdiff_t>(from), buf_r_.begin() + static_cast<std::ptrdiff_t>(from + count),
             buf_r_.begin());
   base_ = new_base;
+  wp_ = buf_x_.data() + count;
+  due_p_ = buf_x_.data() + (next_block_ + blk_ + kSpikeDelay - base_);
 }
 
 void ImpactDetector::spike_test(std::uint64_t n, double t_mad) {
@@ -420,13 +423,13 @@ void ImpactDetector::process_block() {
   decide_block(b, blk_, blk_, true);
   band_blocks(b, blk_ / dec_);
   next_block_ += blk_;
-  due_ += blk_;
-  if (due_ - base_ > buf_x_.size()) shift_buffer();
+  due_p_ += blk_;
+  if (due_p_ > buf_x_.data() + buf_x_.size()) shift_buffer();
 }
 
 void ImpactDetector::finish() {
   // The last whole decimation steps, whose right neighbours never came: no spike decisions in them.
-  const auto avail = static_cast<std::size_t>(next_raw_ - next_block_);
+  const auto avail = static_cast<std::size_t>(next_index() - next_block_);
   const std::size_t len = avail / dec_ * dec_;
   if (len > 0) {
     const std::uint64_t b = next_block_;
@@ -434,7 +437,8 @@ void ImpactDetector::finish() {
     decide_block(b, len, n_res, false);
     band_blocks(b, len / dec_);
     next_block_ += len;
-    due_ += len;
+    due_p_ += len;
+    if (due_p_ > buf_x_.data() + buf_x_.size()) shift_buffer();  // in case pushing goes on
   }
   if (confirming_) {
     // The stream ended during confirmation or settling: judge with the energy seen so far.

@@ -140,6 +140,11 @@ class ImpactDetector {
   /// history_samples: how far back band powers and spike indices stay available for
   /// noise estimates (input samples).
   ImpactDetector(const ImpactDetectorConfig& config, double sample_rate_hz, std::size_t history_samples);
+  // Holds pointers into its own buffers: not copyable (moving keeps the buffers).
+  ImpactDetector(const ImpactDetector&) = delete;
+  ImpactDetector& operator=(const ImpactDetector&) = delete;
+  ImpactDetector(ImpactDetector&&) = default;
+  ImpactDetector& operator=(ImpactDetector&&) = default;
 
   /// Starts a new contiguous segment at absolute index `first_index` (stream start or after a gap).
   /// Pending triggers are dropped; call finish() first to keep them.
@@ -148,8 +153,8 @@ class ImpactDetector {
   /// Feeds the raw sample of absolute index next_index() (consecutive). Stores it; every
   /// decimation() samples one block is processed.
   void push(float x) {
-    buf_x_[static_cast<std::size_t>(next_raw_ - base_)] = x;
-    if (++next_raw_ == due_) process_block();
+    *wp_ = x;
+    if (++wp_ == due_p_) process_block();
   }
   /// Feeds consecutive samples (same result as pushing them one by one).
   void push(std::span<const float> xs) {
@@ -159,7 +164,7 @@ class ImpactDetector {
   /// what has been seen.
   void finish();
 
-  std::uint64_t next_index() const { return next_raw_; }
+  std::uint64_t next_index() const { return base_ + static_cast<std::uint64_t>(wp_ - buf_x_.data()); }
 
   /// Onsets found, in order; the caller takes them with pop_onset().
   bool has_onset() const { return onset_count_ > 0; }
@@ -255,7 +260,9 @@ class ImpactDetector {
   std::uint64_t base_ = 0;
 
   // segment state
-  std::uint64_t seg_start_ = 0, next_raw_ = 0, next_block_ = 0, due_ = 0;
+  std::uint64_t seg_start_ = 0, next_block_ = 0;
+  float* wp_ = nullptr;     // where the next pushed sample goes (in buf_x_)
+  float* due_p_ = nullptr;  // the block starting at next_block_ runs when wp_ reaches this
   double mad_sum_ = 0;           // running winsorised mean |r|
   std::uint64_t mad_count_ = 0;
   LowPass4 lp_i_, lp_q_;
