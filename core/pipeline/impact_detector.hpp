@@ -116,7 +116,7 @@ struct Biquad {
   double s1 = 0, s2 = 0;
   double step(double x) {
     const double y = b0 * x + s1;
-    s1 = b1 * x - a1 * y + s2;
+    s1 = (b1 * x + s2) - a1 * y;  // only a1 y - after y on the recursion's critical path
     s2 = b2 * x - a2 * y;
     return y;
   }
