@@ -31,7 +31,50 @@ Biquad make_biquad(double f_hz, double q, double fs, bool high) {
   return b;
 }
 
-std::uint64_t pow2_at_least(std::size_t n) { return std::bit_ceil(std::max<std::size_t>(n, 16)); }
+constexpr double kSixth = 1.0 / 6.0;
+
+// Dot product of FIR taps with samples (float, see the header: stage 2a), n a multiple of 4; four
+// partial sums so that the compiler can keep them in one vector register (a single running sum is a
+// serial dependency chain).
+inline double dot4(const float* x, const float* g, std::size_t n) {
+  float a0 = 0, a1 = 0, a2 = 0, a3 = 0;
+  for (std::size_t k = 0; k < n; k += 4) {
+    a0 += g[k] * x[k];
+    a1 += g[k + 1] * x[k + 1];
+    a2 += g[k + 2] * x[k + 2];
+    a3 += g[k + 3] * x[k + 3];
+  }
+  return static_cast<double>((a0 + a1) + (a2 + a3));
+}
+
+inline void fir_dot(const float* x, const float* g_re, const float* g_im, std::size_t n, double& re, double& im) {
+  re = dot4(x, g_re, n);
+  im = dot4(x, g_im, n);
+}
+
+// Sum of min(|r|, clip) and whether any |r| > above, with four partial sums and an integer flag so
+// that the loop vectorises (a single floating-point running sum is a serial dependency chain).
+inline bool clipped_sum_any_above(const float* r, std::size_t n, float clip, float above, double& sum) {
+  float s0 = 0, s1 = 0, s2 = 0, s3 = 0;
+  int any = 0;
+  std::size_t k = 0;
+  for (; k + 4 <= n; k += 4) {
+    const float a0 = std::abs(r[k]), a1 = std::abs(r[k + 1]), a2 = std::abs(r[k + 2]), a3 = std::abs(r[k + 3]);
+    s0 += std::min(a0, clip);
+    s1 += std::min(a1, clip);
+    s2 += std::min(a2, clip);
+    s3 += std::min(a3, clip);
+    any |= static_cast<int>(a0 > above) | static_cast<int>(a1 > above) | static_cast<int>(a2 > above) |
+           static_cast<int>(a3 > above);
+  }
+  for (; k < n; ++k) {
+    const float a = std::abs(r[k]);
+    s0 += std::min(a, clip);
+    any |= static_cast<int>(a > above);
+  }
+  sum = static_cast<double>((s0 + s1) + (s2 + s3));
+  return any != 0;
+}
 
 }  // namespace
 
@@ -65,54 +108,147 @@ ImpactDetector::ImpactDetector(const ImpactDetectorConfig& cfg, double fs, std::
   fs_ = fs;
   ratio_ = cfg.trigger_ratio;
   spike_k_ = cfg.spike_mad;
-  sta_n_ = std::max<std::size_t>(1, static_cast<std::size_t>(std::llround(cfg.sta_s * fs)));
-  lta_n_ = std::max<std::size_t>(sta_n_ + 1, static_cast<std::size_t>(std::llround(cfg.lta_s * fs)));
-  lta_alpha_ = 1.0 / static_cast<double>(lta_n_);
-  holdoff_ = static_cast<std::size_t>(std::llround(cfg.holdoff_s * fs));
-  confirm_ = 4 * sta_n_;
   const double fc = 0.5 * (cfg.band_lo_hz + cfg.band_hi_hz);
   const double bw = 0.5 * (cfg.band_hi_hz - cfg.band_lo_hz);
-  proto_.s1 = Biquad::lowpass(bw, 0.54119610014619698, fs);  // 1 / (2 cos(pi/8))
-  proto_.s2 = Biquad::lowpass(bw, 1.3065629648763766, fs);   // 1 / (2 cos(3 pi/8))
-  rot_ = std::polar(1.0, -2.0 * std::numbers::pi * fc / fs);
-  band_noise_gain_ = proto_.energy_gain();
-  calibrate(fc);
+
+  // Decimation: the decimated rate stays >= 40 B (20-fold oversampling of the envelope's 2B band).
+  dec_ = std::clamp<std::size_t>(static_cast<std::size_t>(std::floor(fs / (40.0 * bw))), 1, 64);
+  fs_d_ = fs / static_cast<double>(dec_);
+  // Spike stage and buffering work on blocks of whole decimation steps of about 0.4 ms (20 samples at
+  // 51.2 kHz: the per-call overhead is shared and the loops vectorise better; longer blocks add to the
+  // decision delay), one band sample per D samples inside.
+  blk_ = dec_ * std::max<std::size_t>(1, static_cast<std::size_t>(std::floor(kBlockS * fs / static_cast<double>(dec_))));
+  inv_blk_ = 1.0 / static_cast<double>(blk_);
+  // Triangular anti-alias FIR (two boxcars of D, 2D - 1 taps, unit DC gain) on the demodulated signal;
+  // with D = 1 a single unit tap. Stored oldest-sample first as h[k] e^{+i w k}, k = L - 1 - i.
+  const std::size_t n_taps = 2 * dec_ - 1;
+  taps_ = (n_taps + 3) / 4 * 4;  // zero-padded (oldest end) to a multiple of 4 for fir_dot
+  const double w = 2.0 * std::numbers::pi * fc / fs;
+  g_re_.assign(taps_, 0.0f);
+  g_im_.assign(taps_, 0.0f);
+  const double d2 = static_cast<double>(dec_) * static_cast<double>(dec_);
+  for (std::size_t k = 0; k < n_taps; ++k) {
+    const double dist = std::abs(static_cast<double>(k) - static_cast<double>(dec_ - 1));
+    const double h = (static_cast<double>(dec_) - dist) / d2;
+    g_re_[taps_ - 1 - k] = static_cast<float>(h * std::cos(w * static_cast<double>(k)));
+    g_im_[taps_ - 1 - k] = static_cast<float>(h * std::sin(w * static_cast<double>(k)));
+  }
+  rot_d_ = std::polar(1.0, -w * static_cast<double>(dec_));
+  proto_.s1 = Biquad::lowpass(bw, 0.54119610014619698, fs_d_);  // 1 / (2 cos(pi/8))
+  proto_.s2 = Biquad::lowpass(bw, 1.3065629648763766, fs_d_);   // 1 / (2 cos(3 pi/8))
+
+  sta_d_ = std::max<std::size_t>(1, static_cast<std::size_t>(std::llround(cfg.sta_s * fs_d_)));
+  lta_d_ = std::max<std::size_t>(sta_d_ + 1, static_cast<std::size_t>(std::llround(cfg.lta_s * fs_d_)));
+  lta_alpha_ = 1.0 / static_cast<double>(lta_d_);
+  lta_keep_ = 1.0 - lta_alpha_;
+  lta_cap_alpha_ = kCap * lta_alpha_;
+  holdoff_d_ = static_cast<std::size_t>(std::llround(cfg.holdoff_s * fs_d_));
+  // Confirmation over 4 STA windows (2 ms at the defaults), rounded on the band-sample grid.
+  confirm_d_ = std::max<std::size_t>(sta_d_, static_cast<std::size_t>(std::llround(4.0 * cfg.sta_s * fs_d_)));
   // Pre-window: one correlation time of the band's envelope (1/B, 8 ms at 125 Hz) and at least 4 STA
   // windows, so that neither noise nor the beat of a decaying tail with a residual line (240 Hz for
   // 860/1100 Hz) makes a rise on its own.
-  pre_n_ = std::max<std::size_t>(4 * sta_n_, static_cast<std::size_t>(std::ceil(fs / bw)));
-  inv_sta_n_ = 1.0 / static_cast<double>(sta_n_);
-  inv_pre_n_ = 1.0 / static_cast<double>(pre_n_);
+  pre_d_ = std::max<std::size_t>(4 * sta_d_, static_cast<std::size_t>(std::ceil(fs_d_ / bw)));
+  inv_sta_d_ = 1.0 / static_cast<double>(sta_d_);
+  inv_pre_d_ = 1.0 / static_cast<double>(pre_d_);
+  // The spike scale's running mean keeps the per-sample time constant lta_s, applied once per block.
+  const double lta_in = std::max(2.0, std::round(cfg.lta_s * fs));
+  mad_beta_ = 1.0 - std::pow(1.0 - 1.0 / lta_in, static_cast<double>(blk_));
+
   {
-    // Fill-up of the low-pass for stationary input: g(k) = sum_{j<=k} h_j^2 / sum h^2, until 0.999.
-    LowPass4 f = proto_;
-    f.reset();
+    // Noise gain and fill-up of the whole chain for white input: the squared responses of the band
+    // samples to a unit impulse at each of the D positions of a block, S[m] summed over the
+    // positions. E[e] after m band samples of a segment = sum_{j <= m} S[j] (impulses in later blocks
+    // act like earlier ones on earlier band samples), the stationary value is sum S.
+    const std::size_t n_out = static_cast<std::size_t>(std::ceil(0.25 * fs_d_)) + 8;
+    std::vector<double> s(n_out, 0.0), x(n_out * dec_, 0.0);
+    std::vector<std::complex<double>> y;
+    for (std::size_t p = 0; p < dec_; ++p) {
+      std::fill(x.begin(), x.end(), 0.0);
+      x[p] = 1.0;
+      run_chain(x, y);
+      for (std::size_t m = 0; m < n_out; ++m) s[m] += std::norm(y[m]);
+    }
+    band_noise_gain_ = 0.0;
+    for (double v : s) band_noise_gain_ += v;
     double acc = 0.0;
-    for (std::size_t k = 0; k < 1000000; ++k) {
-      const double h = f.step(k == 0 ? 1.0 : 0.0);
-      acc += h * h;
+    for (std::size_t m = 0; m < n_out; ++m) {
+      acc += s[m];
       const double g = acc / band_noise_gain_;
       if (g >= 0.999) break;
       fill_.push_back(std::max(g, 1e-3));
     }
-    // No trigger before the STA window is full and the low-pass has reached a quarter of its
-    // stationary output power (before that, 1/g amplifies the start too much).
-    warmup_ = sta_n_;
-    while (warmup_ < fill_.size() && fill_[warmup_] < 0.25) ++warmup_;
+    // No trigger before the STA window is full and the chain has reached a quarter of its stationary
+    // output power (before that, 1/g amplifies the start too much).
+    warmup_d_ = sta_d_;
+    while (warmup_d_ < fill_.size() && fill_[warmup_d_] < 0.25) ++warmup_d_;
   }
-  // Look-back of the onset search: the trigger comes at most about two group delays of the
-  // low-pass (2.6 / (2 pi B) for a 4th-order Butterworth at DC) plus two STA windows after the onset.
-  lookback_ = 2 * sta_n_ + static_cast<std::size_t>(std::ceil(2.0 * 2.6 / (2.0 * std::numbers::pi * bw) * fs));
-  const std::uint64_t ysize = pow2_at_least(history_samples + lookback_ + settle_ + confirm_ + pre_n_ + sta_n_ + 64);
-  e_hist_.assign(ysize, 0.0);
-  y_mask_ = ysize - 1;
+  calibrate(fc);
+  {
+    // Start-up rise reference: a window of 2 ms ending one model peak time before the newest band
+    // sample (an impact's rise from onset to peak lies after it), its mean scaled by the model's
+    // energy decay over the distance between the window's centre and now.
+    lag_d_ = static_cast<std::size_t>(std::llround(peak_samples_ / static_cast<double>(dec_)));
+    lagw_d_ = std::max<std::size_t>(sta_d_, static_cast<std::size_t>(std::ceil(0.002 * fs_d_)));
+    const double sigma0 = kModelZeta * 2.0 * std::numbers::pi * fc;
+    lag_decay_ = std::exp(-2.0 * sigma0 * (static_cast<double>(lag_d_) + 0.5 * static_cast<double>(lagw_d_ - 1)) / fs_d_);
+    startup_end_d_ = warmup_d_ + lta_d_;
+  }
+  // A running maximum that has not grown for 1 ms is past the envelope's smooth peak.
+  hold_d_ = std::max<std::size_t>(2, static_cast<std::size_t>(std::ceil(0.001 * fs_d_)));
+  // Onset search floor: an impact triggers at the latest at its envelope peak plus one STA window (after
+  // that the STA falls while the references do not), and the 50 % crossing lies (peak - t50) before the
+  // peak; + one band sample for the block rounding. The onset (crossing - t50) then lies at most
+  // lookback_ before the trigger.
+  search_back_d_ = static_cast<std::size_t>(std::ceil((peak_samples_ - t50_samples_) / static_cast<double>(dec_))) +
+                   sta_d_ + 1;
+  lookback_ = search_back_d_ * dec_ + static_cast<std::size_t>(std::ceil(t50_samples_)) + 1;
+  // Decision at the latest this long after the trigger (never reached by impacts like the model: the
+  // rules below decide first).
+  cap_d_ = search_back_d_ + static_cast<std::size_t>(std::ceil(peak_samples_ / static_cast<double>(dec_))) + hold_d_;
+  {
+    // Bound on (report - onset) in input samples. The decision comes at the first band sample at or past
+    // onset + peak + 1 ms (the provisional onset is the final one), or, for a weak impact triggered
+    // near its peak, when the confirmation after a trigger at most lookback_ after the onset is
+    // complete; + one block (band-sample grid) and the spike delay before a block runs.
+    const double by_peak = peak_samples_ + 0.001 * fs;
+    const double by_confirm = static_cast<double>(lookback_ + confirm_d_ * dec_);
+    report_delay_ = static_cast<std::size_t>(std::ceil(std::max(by_peak, by_confirm))) + blk_ + kSpikeDelay + 1;
+  }
+
+  const std::size_t hist_d = (history_samples + lookback_ + report_delay_) / dec_ + pre_d_ + sta_d_ + 64;
+  const std::uint64_t esize = std::bit_ceil(std::max<std::size_t>(hist_d, 64));
+  e_hist_.assign(esize, 0.0);
+  e_mask_ = esize - 1;
+  hist_ = taps_ + 8;
+  buf_x_.assign(hist_ + 64 * blk_ + blk_ + kSpikeDelay + 8, 0.0f);
+  buf_r_.assign(buf_x_.size(), 0.0f);
   restart(0);
 }
 
+void ImpactDetector::run_chain(const std::vector<double>& x, std::vector<std::complex<double>>& y) const {
+  // The trigger band of a record x starting at rest, block grid at x[0]: as process_block().
+  LowPass4 li = proto_, lq = proto_;
+  std::complex<double> ph{1.0, 0.0};
+  y.clear();
+  std::vector<float> padded(taps_ - 1, 0.0f);
+  for (double v : x) padded.push_back(static_cast<float>(v));
+  for (std::size_t j = dec_ - 1; j < x.size(); j += dec_) {
+    double re = 0.0, im = 0.0;
+    fir_dot(padded.data() + j, g_re_.data(), g_im_.data(), taps_, re, im);  // x[j - L + 1 .. j]
+    const std::complex<double> z = std::complex<double>(re, im) * ph;
+    ph *= rot_d_;
+    y.emplace_back(li.step(z.real()), lq.step(z.imag()));
+  }
+}
+
 void ImpactDetector::restart(std::uint64_t first_index) {
-  seg_start_ = next_raw_ = next_decide_ = first_index;
-  raw_.fill(0.0);
-  res_.fill(0.0);
+  seg_start_ = next_block_ = first_index;
+  base_ = first_index - hist_;  // unsigned: n - base_ is the buffer position even if first_index < hist_
+  std::fill(buf_x_.begin(), buf_x_.end(), 0.0f);
+  std::fill(buf_r_.begin(), buf_r_.end(), 0.0f);
+  wp_ = buf_x_.data() + hist_;
+  due_p_ = wp_ + blk_ + kSpikeDelay;
   mad_sum_ = 0.0;
   mad_count_ = 0;
   lp_i_ = proto_;
@@ -120,45 +256,55 @@ void ImpactDetector::restart(std::uint64_t first_index) {
   phasor_ = {1.0, 0.0};
   sta_sum_ = pre_sum_ = 0.0;
   band_count_ = 0;
-  resum_left_ = pre_n_;
+  resum_left_ = pre_d_;
   lta_ = 0.0;
-  holdoff_end_ = lta_frozen_until_ = first_index;
+  lta_count_ = 0;
+  holdoff_end_ = lta_frozen_until_ = 0;
   confirming_ = false;
   confirmed_ = false;
   confirm_sum_ = 0.0;
   confirm_seen_ = 0;
+  startup_ = true;
 }
 
 void ImpactDetector::calibrate(double fc) {
   // The trigger chain's envelope for x = exp(-sigma0 t) cos(2 pi fc t), t >= 0, sigma0 for
-  // zeta = 0.024 (the paper rig): its maximum, the time of the maximum, and the 50 % crossing.
-  const double sigma0 = 0.024 * 2.0 * std::numbers::pi * fc;
-  LowPass4 li = proto_, lq = proto_;
-  std::complex<double> ph{1.0, 0.0};
-  const auto n_max = static_cast<std::size_t>(std::ceil(0.1 * fs_));  // 100 ms is past any peak
-  double peak = 0.0, prev = 0.0, t50 = 0.0;
-  std::size_t peak_at = 0;
-  std::vector<double> env(n_max);
-  for (std::size_t n = 0; n < n_max; ++n) {
-    const double t = static_cast<double>(n) / fs_;
-    const double x = std::exp(-sigma0 * t) * std::cos(2.0 * std::numbers::pi * fc * t);
-    const double i = li.step(x * ph.real()), q = lq.step(x * ph.imag());
-    ph *= rot_;
-    env[n] = std::hypot(i, q);
-    if (env[n] > peak) {
-      peak = env[n];
-      peak_at = n;
+  // zeta = 0.024 (the paper rig), started at each position p of the block grid: the 50 % crossing of
+  // its maximum and the time of the maximum, in input samples after the start.
+  const double sigma0 = kModelZeta * 2.0 * std::numbers::pi * fc;
+  const auto n_len = static_cast<std::size_t>(std::ceil(0.1 * fs_)) + 2 * dec_;  // 100 ms is past any peak
+  std::vector<double> x(n_len, 0.0);
+  std::vector<std::complex<double>> y;
+  double t50_sum = 0.0, t50_min = 1e300, t50_max = -1e300, peak_max = 0.0;
+  for (std::size_t p = 0; p < dec_; ++p) {
+    for (std::size_t n = 0; n < n_len; ++n) {
+      const double t = (static_cast<double>(n) - static_cast<double>(p)) / fs_;
+      x[n] = n < p ? 0.0 : std::exp(-sigma0 * t) * std::cos(2.0 * std::numbers::pi * fc * t);
     }
-  }
-  for (std::size_t n = peak_at; n > 0; --n) {
-    if (env[n - 1] < 0.5 * peak) {
-      prev = env[n - 1];
-      t50 = static_cast<double>(n - 1) + (0.5 * peak - prev) / (env[n] - prev);
-      break;
+    run_chain(x, y);
+    std::size_t m_peak = 0;
+    for (std::size_t m = 0; m < y.size(); ++m)
+      if (std::abs(y[m]) > std::abs(y[m_peak])) m_peak = m;
+    const double half = 0.5 * std::abs(y[m_peak]);
+    double u = 0.0;
+    for (std::size_t m = m_peak; m > 0; --m) {
+      const double lo = std::abs(y[m - 1]);
+      if (lo < half) {
+        u = static_cast<double>(m - 1) + (half - lo) / (std::abs(y[m]) - lo);
+        break;
+      }
     }
+    const double d = static_cast<double>(dec_);
+    const double t50 = (u + 1.0) * d - 1.0 - static_cast<double>(p);
+    const double tpk = static_cast<double>(m_peak + 1) * d - 1.0 - static_cast<double>(p);
+    t50_sum += t50;
+    t50_min = std::min(t50_min, t50);
+    t50_max = std::max(t50_max, t50);
+    peak_max = std::max(peak_max, tpk);
   }
-  t50_samples_ = t50;
-  settle_ = peak_at + 1;
+  t50_samples_ = t50_sum / static_cast<double>(dec_);
+  t50_spread_ = t50_max - t50_min;
+  peak_samples_ = peak_max;
 }
 
 std::uint64_t ImpactDetector::pop_onset() {
@@ -168,180 +314,291 @@ std::uint64_t ImpactDetector::pop_onset() {
   return o;
 }
 
-void ImpactDetector::push_raw(double x) {
-  const std::uint64_t i = next_raw_++;
-  raw_[i & 7] = x;
-  // Residual of sample m = i - 2 (needs m-2 .. m+2 inside the segment).
-  if (i >= seg_start_ + 4) {
-    const std::uint64_t m = i - 2;
-    // Multiplication by 1/6 instead of a division (divisions were ~4 of the ~14 ns per sample).
-    constexpr double kSixth = 1.0 / 6.0;
-    const double pred = (-raw_[(m - 2) & 7] + 4.0 * raw_[(m - 1) & 7] + 4.0 * raw_[(m + 1) & 7] - raw_[(m + 2) & 7]) * kSixth;
-    res_[m & 7] = raw_[m & 7] - pred;
-  } else if (i >= seg_start_ + 2) {
-    res_[(i - 2) & 7] = 0.0;  // first two samples of a segment: no left neighbours, never spikes
-  }
-  if (i >= seg_start_ + kSpikeDelay) decide(i - kSpikeDelay, true);
+void ImpactDetector::shift_buffer() {
+  const std::uint64_t new_base = next_block_ - hist_;
+  const auto from = static_cast<std::size_t>(new_base - base_);
+  const auto count = static_cast<std::size_t>(next_index() - new_base);
+  std::copy(buf_x_.begin() + static_cast<std::ptrdiff_t>(from), buf_x_.begin() + static_cast<std::ptrdiff_t>(from + count),
+            buf_x_.begin());
+  std::copy(buf_r_.begin() + static_cast<std::ptrdiff_t>(from), buf_r_.begin() + static_cast<std::ptrdiff_t>(from + count),
+            buf_r_.begin());
+  base_ = new_base;
+  wp_ = buf_x_.data() + count;
+  due_p_ = buf_x_.data() + (next_block_ + blk_ + kSpikeDelay - base_);
 }
 
-void ImpactDetector::finish() {
-  // Samples whose right neighbours never came: no spike decision (they cannot be shown isolated).
-  while (next_decide_ < next_raw_) decide(next_decide_, false);
-  if (confirming_) {
-    // The stream ended during confirmation or settling: judge with the energy seen so far.
-    const std::size_t seen = std::min(confirm_seen_, confirm_);
-    if (seen > 0 && confirm_sum_ / static_cast<double>(seen) > ratio_ * trigger_ref_)
-      refine_and_emit(trigger_, next_decide_);
-    confirming_ = false;
-  }
-}
-
-void ImpactDetector::decide(std::uint64_t n, bool have_right) {
-  next_decide_ = n + 1;
-  double clean = raw_[n & 7];
-  const bool have_left = n >= seg_start_ + 2;
-  // Robust scale: MAD from the winsorised mean |r| (Gaussian: E|r| = 0.7979 sd, MAD = 0.6745 sd).
-  // The absolute floor keeps float32 rounding of an otherwise noise-free signal from looking noisy
-  // or, with digital silence, everything from looking like a spike.
-  constexpr std::uint64_t kWarmup = 32;
-  const double mean_abs = mad_count_ > 0 ? mad_sum_ : 0.0;
-  const double mad = std::max(0.6745 / 0.7979 * mean_abs, 1e-9);
+void ImpactDetector::spike_test(std::uint64_t n, double t_mad) {
+  float* x = buf_x_.data() + (n - base_);
+  float* r = buf_r_.data() + (n - base_);
   // A spike must also stand out against the signal itself: at least a quarter of the neighbours'
   // magnitude. The interpolation residual of a sharp but genuine feature (the kink of a 0.15 ms force
   // pulse sampled at 25.6 kHz leaves ~5 % of the amplitude) would otherwise pass 12 MAD at low noise;
   // sensor spikes are large (the simulator's 0.75-2 x the impact peak).
-  const double neighbours = std::max({std::abs(raw_[(n - 1) & 7]), std::abs(raw_[(n + 1) & 7]),
-                                      std::abs(raw_[(n - 2) & 7]), std::abs(raw_[(n + 2) & 7])});
-  const double limit = std::max(spike_k_ * mad, 0.25 * neighbours);
-  const double r = have_left && have_right ? res_[n & 7] : 0.0;
-  if (mad_count_ >= kWarmup && have_left && have_right && std::abs(r) > limit) {
-    const double r_m1 = res_[(n - 1) & 7] + 2.0 / 3.0 * r, r_p1 = res_[(n + 1) & 7] + 2.0 / 3.0 * r;
-    const double r_m2 = res_[(n - 2) & 7] - r / 6.0, r_p2 = res_[(n + 2) & 7] - r / 6.0;
-    if (std::abs(r_m1) <= limit && std::abs(r_p1) <= limit && std::abs(r_m2) <= limit && std::abs(r_p2) <= limit) {
-      clean = raw_[n & 7] - r;  // the interpolation
-      raw_[n & 7] = clean;
-      res_[n & 7] = 0.0;
-      res_[(n - 1) & 7] = r_m1;
-      res_[(n + 1) & 7] = r_p1;
-      res_[(n - 2) & 7] = r_m2;
-      res_[(n + 2) & 7] = r_p2;
-      ++spikes_;
-      spike_idx_[spike_head_] = n;
-      spike_head_ = (spike_head_ + 1) % kSpikeRing;
-      spike_count_ = std::min(spike_count_ + 1, kSpikeRing);
-    }
+  const double neighbours = std::max({std::abs(x[-1]), std::abs(x[1]), std::abs(x[-2]), std::abs(x[2])});
+  const double limit = std::max(t_mad, 0.25 * neighbours);
+  const double rr = r[0];
+  if (!(std::abs(rr) > limit)) return;
+  const double r_m1 = r[-1] + 2.0 / 3.0 * rr, r_p1 = r[1] + 2.0 / 3.0 * rr;
+  const double r_m2 = r[-2] - rr * kSixth, r_p2 = r[2] - rr * kSixth;
+  if (std::abs(r_m1) <= limit && std::abs(r_p1) <= limit && std::abs(r_m2) <= limit && std::abs(r_p2) <= limit) {
+    x[0] = static_cast<float>(x[0] - rr);  // the interpolation
+    r[0] = 0.0f;
+    r[-1] = static_cast<float>(r_m1);
+    r[1] = static_cast<float>(r_p1);
+    r[-2] = static_cast<float>(r_m2);
+    r[2] = static_cast<float>(r_p2);
+    ++spikes_;
+    spike_idx_[spike_head_] = n;
+    spike_head_ = (spike_head_ + 1) % kSpikeRing;
+    spike_count_ = std::min(spike_count_ + 1, kSpikeRing);
   }
-  if (have_left && have_right) {
-    const double a = std::abs(res_[n & 7]);
-    if (mad_count_ < kWarmup) {
-      ++mad_count_;
-      mad_sum_ += (a - mad_sum_) / static_cast<double>(mad_count_);
-    } else {
-      mad_sum_ += lta_alpha_ * (std::min(a, 3.0 * mad_sum_ + 1e-30) - mad_sum_);
-    }
-  }
-  band_sample(n, clean);
 }
 
-void ImpactDetector::band_sample(std::uint64_t n, double clean) {
-  // Complex demodulation: the phasor advances by rot_ per sample; renormalised every 256 samples
-  // (Newton step on |p|^2 = 1) so rounding cannot make it drift.
-  const double i_part = lp_i_.step(clean * phasor_.real());
-  const double q_part = lp_q_.step(clean * phasor_.imag());
-  phasor_ *= rot_;
-  if ((n & 255) == 0) phasor_ *= 0.5 * (3.0 - std::norm(phasor_));
+void ImpactDetector::decide_block(std::uint64_t b, std::size_t len, std::size_t n_res, bool test_spikes) {
+  // Samples [b, b + len). Residuals of [b + 2, b + 2 + n_res) (those of b, b + 1 came with the previous
+  // block; the first two samples of a segment have no left neighbours: 0, never spikes).
+  const std::size_t d = len;
+  const float* x = buf_x_.data() + (b - base_);
+  float* r = buf_r_.data() + (b - base_);
+  if (b == seg_start_) r[0] = r[1] = 0.0f;
+  constexpr float kSixthF = 1.0f / 6.0f;
+  for (std::size_t i = 2; i < 2 + n_res; ++i)
+    r[i] = x[i] - (-x[i - 2] + 4.0f * x[i - 1] + 4.0f * x[i + 1] - x[i + 2]) * kSixthF;
+  for (std::size_t i = 2 + n_res; i < d + 2; ++i) r[i] = 0.0f;  // end of segment: no right neighbours
+
+  // Robust scale: MAD from the winsorised mean |r| (Gaussian: E|r| = 0.7979 sd, MAD = 0.6745 sd).
+  // The absolute floor keeps float32 rounding of an otherwise noise-free signal from looking noisy
+  // or, with digital silence, everything from looking like a spike.
+  const std::size_t first = b == seg_start_ ? 2 : 0;
+  const auto clip = static_cast<float>(3.0 * mad_sum_ + 1e-30);
+  if (test_spikes && mad_count_ >= kMadWarmup) {
+    const double t_mad = spike_k_ * std::max(0.6745 / 0.7979 * mad_sum_, 1e-9);
+    // Vectorisable pre-test (and the scale update's clipped sum, valid when nothing is removed);
+    // only a block with a candidate runs the sequential isolation test (a corrected neighbour can
+    // become a candidate, so the scan re-reads r).
+    double s = 0.0;
+    if (!clipped_sum_any_above(r + first, d - first, clip, static_cast<float>(t_mad), s)) {
+      mad_sum_ += mad_beta_ * (s * inv_blk_ - mad_sum_);  // first == 0 and d == blk_ here
+      return;
+    }
+    const std::size_t last = std::min(d, n_res);  // n needs residuals up to n + 2
+    for (std::size_t i = 0; i < last; ++i)
+      if (std::abs(r[i]) > t_mad) spike_test(b + i, t_mad);
+  }
+  // Update the scale with the block's residuals (after spike removal).
+  if (mad_count_ < kMadWarmup) {
+    for (std::size_t i = first; i < d; ++i) {
+      const double a = std::abs(static_cast<double>(r[i]));
+      if (mad_count_ < kMadWarmup) {
+        ++mad_count_;
+        mad_sum_ += (a - mad_sum_) / static_cast<double>(mad_count_);
+      } else {
+        mad_sum_ += mad_beta_ * inv_blk_ * (std::min(a, 3.0 * mad_sum_ + 1e-30) - mad_sum_);
+      }
+    }
+  } else if (d > first) {
+    double s = 0.0;
+    clipped_sum_any_above(r + first, d - first, clip, 3e38f, s);
+    mad_sum_ += mad_beta_ * static_cast<double>(d - first) * inv_blk_ * (s / static_cast<double>(d - first) - mad_sum_);
+  }
+}
+
+void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
+  // Complex demodulation + anti-alias FIR + decimation: one band sample per D samples, at the last
+  // index of each.
+  for (std::size_t j = 0; j < count; ++j) {
+    double re = 0.0, im = 0.0;
+    fir_dot(buf_x_.data() + (b - base_) + (j + 1) * dec_ - taps_, g_re_.data(), g_im_.data(), taps_, re, im);
+    const std::complex<double> z = std::complex<double>(re, im) * phasor_;
+    // The phasor advances by e^{-i w D} per band sample; renormalised every 64 (Newton step on
+    // |p|^2 = 1) so rounding cannot make it drift.
+    phasor_ *= rot_d_;
+    if ((band_count_ & 63) == 0) phasor_ *= 0.5 * (3.0 - std::norm(phasor_));
+    band_sample(z);
+  }
+}
+
+void ImpactDetector::process_block() {
+  const std::uint64_t b = next_block_;
+  decide_block(b, blk_, blk_, true);
+  band_blocks(b, blk_ / dec_);
+  next_block_ += blk_;
+  due_p_ += blk_;
+  if (due_p_ > buf_x_.data() + buf_x_.size()) shift_buffer();
+}
+
+void ImpactDetector::finish() {
+  // The last whole decimation steps, whose right neighbours never came: no spike decisions in them.
+  const auto avail = static_cast<std::size_t>(next_index() - next_block_);
+  const std::size_t len = avail / dec_ * dec_;
+  if (len > 0) {
+    const std::uint64_t b = next_block_;
+    const std::size_t n_res = avail >= len + 4 ? len : (avail > 4 ? avail - 4 : 0);  // r[i + 2] needs x[i + 4]
+    decide_block(b, len, n_res, false);
+    band_blocks(b, len / dec_);
+    next_block_ += len;
+    due_p_ += len;
+    if (due_p_ > buf_x_.data() + buf_x_.size()) shift_buffer();  // in case pushing goes on
+  }
+  if (confirming_) {
+    // The stream ended during confirmation or settling: judge with the energy seen so far.
+    const std::size_t seen = std::min(confirm_seen_, confirm_d_);
+    if (seen > 0 && confirm_sum_ / static_cast<double>(seen) > ratio_ * trigger_ref_)
+      refine_and_emit(trigger_, band_count_);
+    confirming_ = false;
+  }
+}
+
+std::uint64_t ImpactDetector::dec_end_index(double m) const {
+  return seg_start_ + static_cast<std::uint64_t>(std::llround((m + 1.0) * static_cast<double>(dec_) - 1.0));
+}
+
+void ImpactDetector::band_sample(std::complex<double> z) {
+  const std::uint64_t m = band_count_;
+  const double i_part = lp_i_.step(z.real());
+  const double q_part = lp_q_.step(z.imag());
   double e = i_part * i_part + q_part * q_part;
-  // While the low-pass fills up after a (re)start, stationary input gives E[e] = E_inf g(k):
-  // divide by g so the start of a record is not a rising edge.
-  if (band_count_ < fill_.size()) e /= fill_[static_cast<std::size_t>(band_count_)];
-  e_hist_[n & y_mask_] = e;
+  // While the chain fills up after a (re)start, stationary input gives E[e] = E_inf g(m): divide by g
+  // so the start of a record is not a rising edge.
+  if (m < fill_.size()) e /= fill_[static_cast<std::size_t>(m)];
+  e_hist_[m & e_mask_] = e;
   ++band_count_;
-  // Running sums of the STA window [n - sta + 1, n] and the pre-window before it; re-summed once
+  // Running sums of the STA window [m - sta + 1, m] and the pre-window before it; re-summed once
   // per pre-window so rounding cannot accumulate.
   sta_sum_ += e;
-  if (band_count_ > sta_n_) {
-    const double moved = e_hist_[(n - sta_n_) & y_mask_];
+  if (band_count_ > sta_d_) {
+    const double moved = e_hist_[(m - sta_d_) & e_mask_];
     sta_sum_ -= moved;
     pre_sum_ += moved;
-    if (band_count_ > sta_n_ + pre_n_) pre_sum_ -= e_hist_[(n - sta_n_ - pre_n_) & y_mask_];
+    if (band_count_ > sta_d_ + pre_d_) pre_sum_ -= e_hist_[(m - sta_d_ - pre_d_) & e_mask_];
   }
-  // Countdown instead of band_count_ % pre_n_ == 0: a 64-bit division per sample cost more than
-  // the rest of this function's arithmetic.
   if (--resum_left_ == 0) {
-    resum_left_ = pre_n_;
+    resum_left_ = pre_d_;
     sta_sum_ = pre_sum_ = 0.0;
     const std::uint64_t have = band_count_;
-    for (std::uint64_t k = 0; k < std::min<std::uint64_t>(sta_n_, have); ++k) sta_sum_ += e_hist_[(n - k) & y_mask_];
-    for (std::uint64_t k = sta_n_; k < std::min<std::uint64_t>(sta_n_ + pre_n_, have); ++k) pre_sum_ += e_hist_[(n - k) & y_mask_];
+    for (std::uint64_t k = 0; k < std::min<std::uint64_t>(sta_d_, have); ++k) sta_sum_ += e_hist_[(m - k) & e_mask_];
+    for (std::uint64_t k = sta_d_; k < std::min<std::uint64_t>(sta_d_ + pre_d_, have); ++k) pre_sum_ += e_hist_[(m - k) & e_mask_];
   }
-  // LTA: cumulative mean at first, then the capped exponential mean; frozen around triggers.
-  if (n >= lta_frozen_until_) {
-    if (band_count_ <= sta_n_) {
-      lta_ += (e - lta_) / static_cast<double>(band_count_);
-    } else if (band_count_ <= lta_n_) {
-      lta_ += (std::min(e, kCap * lta_) - lta_) / static_cast<double>(band_count_);
+  // LTA: cumulative mean at first, then the capped exponential mean; frozen around triggers. The
+  // fill-up samples before the warm-up are divided by a tiny g and are unreliable; since the capped
+  // mean may grow by at most (1 + 2/n) per sample, a start far too low would take ~100 ms to recover
+  // and leave only PRE as the reference. So at the end of the warm-up the LTA is raised to the
+  // white-noise band power measured by the spike stage (see white_band_power()).
+  if (m + 1 == warmup_d_ && mad_count_ >= kMadWarmup) lta_ = std::max(lta_, kCapBias * white_band_power());
+  if (m >= lta_frozen_until_) {
+    ++lta_count_;
+    if (lta_count_ <= sta_d_) {
+      lta_ += (e - lta_) / static_cast<double>(lta_count_);
+    } else if (lta_count_ <= lta_d_) {
+      lta_ += (std::min(e, kCap * lta_) - lta_) / static_cast<double>(lta_count_);
     } else {
-      lta_ += lta_alpha_ * (std::min(e, kCap * lta_) - lta_);
+      // = lta + alpha (min(e, 3 lta) - lta), arranged so that the dependency chain through lta_ is
+      // short (alpha e off the chain).
+      lta_ = lta_keep_ * lta_ + std::min(lta_alpha_ * e, lta_cap_alpha_ * lta_);
     }
   }
-  if (band_count_ < warmup_) return;  // STA not yet full, or the low-pass has not filled enough
-  const double sta = std::max(sta_sum_, 0.0) * inv_sta_n_;
+  if (band_count_ < warmup_d_) return;  // STA not yet full, or the chain has not filled enough
+  const double sta = std::max(sta_sum_, 0.0) * inv_sta_d_;
 
   if (confirming_) {
     ++confirm_seen_;
-    if (confirm_seen_ <= confirm_) confirm_sum_ += e;
-    if (confirm_seen_ == confirm_) {
-      confirmed_ = confirm_sum_ / static_cast<double>(confirm_) > ratio_ * trigger_ref_;
+    if (confirm_seen_ <= confirm_d_) confirm_sum_ += e;
+    if (e > e_hist_[peak_at_ & e_mask_]) {
+      peak_at_ = m;
+      peak_since_ = m;
     }
-    if (confirm_seen_ >= std::max(confirm_, settle_)) {
-      confirming_ = false;
-      if (confirmed_) {
-        refine_and_emit(trigger_, n + 1);
-      } else {
+    if (confirm_seen_ == confirm_d_) confirmed_ = confirm_sum_ / static_cast<double>(confirm_d_) > ratio_ * trigger_ref_;
+    if (confirm_seen_ >= confirm_d_) {
+      if (!confirmed_) {
         // Rejected: re-arm at once, as if nothing had happened.
-        holdoff_end_ = n + 1;
-        lta_frozen_until_ = n + 1;
+        confirming_ = false;
+        holdoff_end_ = m + 1;
+        lta_frozen_until_ = m + 1;
+        return;
+      }
+      // The running maximum is final when it has not grown for a hold time, or when the onset it
+      // implies lies the model's peak time + 1 ms back, or at the latest cap_d_ after the trigger.
+      bool done = m - peak_since_ >= hold_d_ || m - trigger_ >= cap_d_;
+      if (!done) {
+        double onset_d = 0.0;
+        onset_estimate(trigger_, peak_at_, &onset_d);
+        done = static_cast<double>(dec_end_index(static_cast<double>(m))) >= onset_d + peak_samples_ + 0.001 * fs_;
+      }
+      if (done) {
+        confirming_ = false;
+        refine_and_emit(trigger_, m + 1);
       }
     }
     return;
   }
-  if (n < holdoff_end_) return;
-  const std::uint64_t pre_count = std::min<std::uint64_t>(pre_n_, band_count_ - sta_n_);
-  const double inv_pre = pre_count == pre_n_ ? inv_pre_n_ : 1.0 / static_cast<double>(pre_count);
-  const double pre = pre_count > 0 ? std::max(pre_sum_, 0.0) * inv_pre : 0.0;
-  const double ref = std::max({lta_ * (1.0 / kCapBias), pre, 1e-30});
+  if (m < holdoff_end_) return;
+  double pre = std::max(pre_sum_, 0.0) * inv_pre_d_;
+  if (band_count_ < sta_d_ + pre_d_) {  // pre-window not yet full: mean over what it holds
+    const std::uint64_t pre_count = band_count_ - std::min<std::uint64_t>(band_count_, sta_d_);
+    pre = pre_count > 0 ? std::max(pre_sum_, 0.0) / static_cast<double>(pre_count) : 0.0;
+  }
+  double rise_ref = pre;
+  if (startup_ && m >= warmup_d_ + lag_d_ + lagw_d_ - 1) {
+    // Start-up (see the header, stage 4): the band can hold a decaying start transient (a rig that
+    // rings from the start of the record, the filters' own switch-on transient). PRE lags its decay;
+    // the lagged window, extrapolated with the model decay, is the level the transient can have now.
+    double lag = 0.0;
+    for (std::size_t k = 0; k < lagw_d_; ++k) lag += e_hist_[(m - lag_d_ - k) & e_mask_];
+    // Floored by the white-noise band power (the LTA may still be too low, see the LTA update).
+    rise_ref = std::min(pre, std::max(lag / static_cast<double>(lagw_d_) * lag_decay_, white_band_power()));
+  }
+  if (startup_ && m >= startup_end_d_) startup_ = false;
+  const double ref = std::max({lta_ * (1.0 / kCapBias), rise_ref, 1e-30});
   if (sta > ratio_ * ref) {
     confirming_ = true;
-    trigger_ = n;
+    trigger_ = m;
+    peak_at_ = m;
+    peak_since_ = m;
     trigger_ref_ = ref;
     confirm_sum_ = 0.0;
     confirm_seen_ = 0;
     confirmed_ = false;
-    lta_frozen_until_ = n + std::max<std::size_t>(holdoff_, confirm_) + 1;
+    lta_frozen_until_ = m + std::max<std::size_t>(holdoff_d_, confirm_d_) + 1;
   }
 }
 
-void ImpactDetector::refine_and_emit(std::uint64_t trigger, std::uint64_t end) {
-  // Envelope maximum over [trigger, end), then the last crossing of half of it before the maximum
-  // (not further back than the look-back), minus the model's 50 % rise time.
-  const std::uint64_t oldest = std::max<std::uint64_t>(seg_start_, end > e_hist_.size() ? end - e_hist_.size() + 1 : 0);
-  std::uint64_t k_peak = trigger;
-  for (std::uint64_t k = trigger; k < end; ++k)
-    if (e_hist_[k & y_mask_] > e_hist_[k_peak & y_mask_]) k_peak = k;
-  const double half = 0.5 * std::sqrt(e_hist_[k_peak & y_mask_]);
-  const std::uint64_t floor_k = std::max(oldest, trigger > lookback_ ? trigger - lookback_ : 0);
+double ImpactDetector::white_band_power() const {
+  // The band power of white noise with the variance the spike stage measures: the interpolation
+  // residual has variance (1 + 34/36) sigma^2 for white noise (stage 1), mad_sum_ is its mean
+  // absolute value (0.7979 sd), and a start transient or a line in or near the band leaves almost no
+  // residual (theta^4 / 6 of its amplitude).
+  const double sd_r = mad_sum_ / 0.7979;
+  return sd_r * sd_r / (1.0 + 34.0 / 36.0) * band_noise_gain_;
+}
+
+std::uint64_t ImpactDetector::onset_estimate(std::uint64_t trigger, std::uint64_t k_peak, double* onset_d) const {
+  // The last crossing of half the envelope maximum before it (not further back than the search
+  // window), in fractional band samples, minus the model's 50 % rise time.
+  const std::uint64_t oldest = band_count_ > e_hist_.size() ? band_count_ - e_hist_.size() + 1 : 0;
+  const double half = 0.5 * std::sqrt(e_hist_[k_peak & e_mask_]);
+  const std::uint64_t floor_k = std::max(oldest, trigger > search_back_d_ ? trigger - search_back_d_ : 0);
   double crossing = static_cast<double>(floor_k);
   for (std::uint64_t k = k_peak; k > floor_k; --k) {
-    const double lo = std::sqrt(e_hist_[(k - 1) & y_mask_]);
+    const double lo = std::sqrt(e_hist_[(k - 1) & e_mask_]);
     if (lo < half) {
-      const double hi = std::sqrt(e_hist_[k & y_mask_]);
+      const double hi = std::sqrt(e_hist_[k & e_mask_]);
       crossing = static_cast<double>(k - 1) + (hi > lo ? (half - lo) / (hi - lo) : 0.0);
       break;
     }
   }
-  const double onset_d = std::max(crossing - t50_samples_, static_cast<double>(oldest));
-  const auto onset = static_cast<std::uint64_t>(std::llround(onset_d));
-  holdoff_end_ = std::max<std::uint64_t>(trigger + holdoff_, end);
+  const double at = static_cast<double>(seg_start_) + (crossing + 1.0) * static_cast<double>(dec_) - 1.0 - t50_samples_;
+  *onset_d = std::max(at, static_cast<double>(seg_start_));
+  return static_cast<std::uint64_t>(std::llround(*onset_d));
+}
+
+void ImpactDetector::refine_and_emit(std::uint64_t trigger, std::uint64_t end) {
+  std::uint64_t k_peak = trigger;
+  for (std::uint64_t k = trigger; k < end; ++k)
+    if (e_hist_[k & e_mask_] > e_hist_[k_peak & e_mask_]) k_peak = k;
+  double onset_d = 0.0;
+  const std::uint64_t onset = onset_estimate(trigger, k_peak, &onset_d);
+  holdoff_end_ = std::max<std::uint64_t>(trigger + holdoff_d_, end);
+  startup_ = false;
   lta_frozen_until_ = std::max(lta_frozen_until_, holdoff_end_);
   if (onset_count_ < kMaxOnsets) {
     onsets_[(onset_head_ + onset_count_) % kMaxOnsets] = onset;
@@ -350,13 +607,40 @@ void ImpactDetector::refine_and_emit(std::uint64_t trigger, std::uint64_t end) {
 }
 
 double ImpactDetector::band_power(std::uint64_t begin, std::uint64_t end) const {
-  const std::uint64_t oldest = std::max<std::uint64_t>(seg_start_, next_decide_ > e_hist_.size() ? next_decide_ - e_hist_.size() : 0);
-  begin = std::max(begin, oldest);
-  end = std::min(end, next_decide_);
+  // Time average over [begin, end) of e, linearly interpolated between the band samples. Interpolating matters: the in-band floor between
+  // impacts often holds the residuals of two lines (a beat in e at their difference frequency, e.g.
+  // 440 Hz for 660/1100 Hz lines), which a plain mean of the few band samples in a 2 ms window
+  // would sample rather than average. Only band samples after the chain's fill-up are used (before,
+  // e is divided by the small fill-up factor g, and a start transient of the rig may still ring).
+  begin = std::max(begin, seg_start_);
   if (end < begin + 8) return NAN;
-  double sum = 0.0;
-  for (std::uint64_t k = begin; k < end; ++k) sum += e_hist_[k & y_mask_];
-  return sum / static_cast<double>(end - begin);
+  const std::uint64_t oldest = std::max<std::uint64_t>(band_count_ > e_hist_.size() ? band_count_ - e_hist_.size() : 0,
+                                                       fill_.size());
+  if (band_count_ < oldest + 2) return NAN;
+  // Band sample m is stamped at its block's end minus the FIR's group delay (D - 1), i.e. at
+  // seg_start + m D: the time its e describes, like the per-sample e of a filter without the
+  // decimation stage.
+  const double d = static_cast<double>(dec_);
+  const double t0 = static_cast<double>(seg_start_);
+  // Interval in band-sample units, clamped to the stored samples [oldest, band_count_ - 1].
+  double u0 = (static_cast<double>(begin) - t0) / d;
+  double u1 = (static_cast<double>(end) - t0) / d;
+  u0 = std::max(u0, static_cast<double>(oldest));
+  u1 = std::min(u1, static_cast<double>(band_count_ - 1));
+  if (u1 - u0 < 8.0 / d) return NAN;
+  auto at = [&](double u) {
+    const auto k = static_cast<std::uint64_t>(u);
+    const double f = u - static_cast<double>(k);
+    const double a = e_hist_[k & e_mask_];
+    return f > 0.0 ? a + f * (e_hist_[(k + 1) & e_mask_] - a) : a;
+  };
+  // Trapezoids: partial first and last intervals, whole ones between.
+  const double k0 = std::ceil(u0), k1 = std::floor(u1);
+  if (k0 > k1) return 0.5 * (at(u0) + at(u1));
+  double area = 0.5 * (at(u0) + at(k0)) * (k0 - u0) + 0.5 * (at(k1) + at(u1)) * (u1 - k1);
+  for (auto k = static_cast<std::uint64_t>(k0); k < static_cast<std::uint64_t>(k1); ++k)
+    area += 0.5 * (e_hist_[k & e_mask_] + e_hist_[(k + 1) & e_mask_]);
+  return area / (u1 - u0);
 }
 
 bool ImpactDetector::spike_in(std::uint64_t begin, std::uint64_t end) const {

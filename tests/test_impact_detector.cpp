@@ -1,0 +1,282 @@
+// ImpactDetector on its own (core/pipeline/impact_detector.hpp): bit-identical output for any push
+// pattern, no allocation while pushing, onset accuracy at every position of an onset relative to the
+// detector's block grid, spikes at every block position, the first impact of a record that starts with
+// steady mesh lines (synthetic lines and the simulator's mesh_stiffness_variation / transmission_error),
+// and the decision delay (samples from an impact's onset until it is reported).
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <iostream>
+#include <numbers>
+#include <random>
+#include <span>
+#include <vector>
+
+#include "allocation_counter.hpp"
+#include "core/model/simulator.hpp"
+#include "core/pipeline/impact_detector.hpp"
+#include "core/pipeline/stream_processor.hpp"
+
+namespace ridgewatch::pipeline {
+namespace {
+
+constexpr double kF = 860.0;     // damped frequency of the synthetic free responses, Hz
+constexpr double kZeta = 0.024;  // their damping ratio (the paper rig's)
+
+struct Signal {
+  std::vector<float> x;
+  std::vector<std::uint64_t> onsets;
+};
+
+struct Options {
+  double fs = 51200.0;
+  double seconds = 1.0;
+  std::vector<double> onset_s;  // impact onsets
+  double amplitude = 0.5;
+  double noise_sd = 0.005;  // 1 % of the impact peak
+  double line_550 = 0.0, line_1100 = 0.0;
+  std::vector<double> spike_s;
+  unsigned seed = 1;
+};
+
+// x(t) = A exp(-sigma (t - t0)) sin(omega_d (t - t0)) after each onset t0 (Eq. 16 with phi = 0), plus
+// steady lines switched on with the record, white noise and single-sample spikes of twice the peak.
+Signal make(const Options& o) {
+  const auto n = static_cast<std::size_t>(o.seconds * o.fs);
+  std::vector<double> acc(n, 0.0);
+  Signal s;
+  const double omega = 2.0 * std::numbers::pi * kF;
+  const double sigma = kZeta * omega / std::sqrt(1.0 - kZeta * kZeta);
+  for (double t0 : o.onset_s) {
+    const auto k0 = static_cast<std::size_t>(std::ceil(t0 * o.fs));
+    s.onsets.push_back(k0);
+    const double tk0 = static_cast<double>(k0) / o.fs;  // onset on the sample grid
+    for (std::size_t k = k0; k < n; ++k) {
+      const double t = static_cast<double>(k) / o.fs - tk0;
+      if (sigma * t > 40) break;
+      acc[k] += o.amplitude * std::exp(-sigma * t) * std::sin(omega * t);
+    }
+  }
+  std::mt19937_64 rng(o.seed);
+  std::normal_distribution<double> gauss(0.0, 1.0);
+  for (std::size_t k = 0; k < n; ++k) {
+    const double t = static_cast<double>(k) / o.fs;
+    acc[k] += o.line_550 * std::sin(2 * std::numbers::pi * 550 * t + 0.3) +
+              o.line_1100 * std::sin(2 * std::numbers::pi * 1100 * t + 1.1) + o.noise_sd * gauss(rng);
+  }
+  for (double ts : o.spike_s) acc[static_cast<std::size_t>(ts * o.fs)] += 2.0 * o.amplitude;
+  s.x.assign(acc.begin(), acc.end());
+  return s;
+}
+
+std::vector<std::uint64_t> detect(ImpactDetector& d, const std::vector<float>& x, std::size_t block) {
+  std::vector<std::uint64_t> out;
+  d.restart(0);
+  for (std::size_t i = 0; i < x.size(); i += block) {
+    const std::size_t len = std::min(block, x.size() - i);
+    if (block == 1) {
+      d.push(x[i]);
+    } else {
+      d.push(std::span<const float>(x.data() + i, len));
+    }
+    while (d.has_onset()) out.push_back(d.pop_onset());
+  }
+  d.finish();
+  while (d.has_onset()) out.push_back(d.pop_onset());
+  return out;
+}
+
+// Every true onset has exactly one detection within tol samples, nothing else.
+void expect_onsets(const std::vector<std::uint64_t>& got, const std::vector<std::uint64_t>& truth, double tol,
+                   const char* what) {
+  ASSERT_EQ(got.size(), truth.size()) << what;
+  for (std::size_t i = 0; i < truth.size(); ++i)
+    EXPECT_LE(std::abs(static_cast<double>(got[i]) - static_cast<double>(truth[i])), tol)
+        << what << ": impact " << i << " at " << truth[i] << " detected at " << got[i];
+}
+
+TEST(ImpactDetector, OutputDoesNotDependOnPushPattern) {
+  Options o;
+  o.seconds = 1.0;
+  for (double t = 0.0123; t < 1.0; t += 0.04) o.onset_s.push_back(t);
+  o.line_550 = 0.1;
+  o.spike_s = {0.3001, 0.5109, 0.7777};
+  const Signal s = make(o);
+  const ImpactDetectorConfig cfg;
+  ImpactDetector ref(cfg, o.fs, 4096);
+  const auto a = detect(ref, s.x, 4096);
+  ASSERT_EQ(a.size(), s.onsets.size());
+  const double p_ref = ref.band_power(30000, 31000);
+  for (std::size_t block : {std::size_t{1}, std::size_t{3}, std::size_t{37}, std::size_t{1000}}) {
+    ImpactDetector d(cfg, o.fs, 4096);
+    EXPECT_EQ(detect(d, s.x, block), a) << block;
+    EXPECT_EQ(d.spikes_seen(), ref.spikes_seen()) << block;
+    const double p = d.band_power(30000, 31000);
+    EXPECT_EQ(std::memcmp(&p, &p_ref, sizeof p), 0) << block;
+  }
+}
+
+TEST(ImpactDetector, PushDoesNotAllocate) {
+  Options o;
+  for (double t = 0.0123; t < 1.0; t += 0.04) o.onset_s.push_back(t);
+  o.line_550 = 0.1;
+  o.spike_s = {0.3001};
+  const Signal s = make(o);
+  ImpactDetector d(ImpactDetectorConfig{}, o.fs, 4096);
+  std::size_t found = 0;
+  const long before = test::allocations();
+  for (int pass = 0; pass < 2; ++pass) {
+    d.restart(static_cast<std::uint64_t>(pass) * 1000000);
+    for (float v : s.x) {
+      d.push(v);
+      while (d.has_onset()) found += d.pop_onset() > 0 ? 1 : 0;
+    }
+    d.finish();
+    found += d.has_onset() ? 1 : 0;
+  }
+  EXPECT_EQ(test::allocations() - before, 0) << "allocations while pushing";
+  EXPECT_EQ(found, 2 * s.onsets.size());
+}
+
+// Onsets at every position relative to the block grid (D consecutive sample offsets), at both
+// common rates. Tolerance 0.1 ms: the issue's accuracy target on the simulated rig (the detector's
+// t50 calibration uses the same model shape, so the residual error is the interpolation between band
+// samples and the noise; measured max |error| is printed).
+TEST(ImpactDetector, OnsetWithinTenthOfAMillisecondAtEveryBlockPosition) {
+  for (double fs : {25600.0, 51200.0}) {
+    const ImpactDetectorConfig cfg;
+    ImpactDetector d(cfg, fs, 4096);
+    Options o;
+    o.fs = fs;
+    o.seconds = 0.05 * static_cast<double>(d.decimation()) + 0.1;
+    for (std::size_t p = 0; p < d.decimation(); ++p)
+      o.onset_s.push_back(0.0203 + 0.05 * static_cast<double>(p) + static_cast<double>(p) / fs);
+    const Signal s = make(o);
+    const auto got = detect(d, s.x, 4096);
+    expect_onsets(got, s.onsets, 0.0001 * fs, "block positions");
+    double worst = 0.0;
+    for (std::size_t i = 0; i < std::min(got.size(), s.onsets.size()); ++i)
+      worst = std::max(worst, std::abs(static_cast<double>(got[i]) - static_cast<double>(s.onsets[i])));
+    std::cout << "fs " << fs << " D " << d.decimation() << ": max |onset error| " << worst / fs * 1e3
+              << " ms, model t50 spread over block positions " << d.t50_spread_samples() << " samples\n";
+  }
+}
+
+TEST(ImpactDetector, SpikesAtEveryBlockPositionAreRemoved) {
+  const ImpactDetectorConfig cfg;
+  const double fs = 51200.0;
+  ImpactDetector d(cfg, fs, 4096);
+  Options o;
+  o.seconds = 1.0;
+  o.line_550 = 0.1;
+  o.line_1100 = 0.05;
+  for (std::size_t p = 0; p < 2 * d.decimation(); ++p)
+    o.spike_s.push_back((0.1 + 0.02 * static_cast<double>(p)) + (static_cast<double>(p) + 0.5) / fs);
+  const Signal s = make(o);
+  EXPECT_TRUE(detect(d, s.x, 512).empty());
+  EXPECT_EQ(d.spikes_seen(), o.spike_s.size());
+}
+
+// Issue: the first impact was missed when steady lines start with the record. Lines as strong as
+// sim-nuisance's (25 % and 18 % of the impact peak), first impact 2.5-40 ms after the start.
+TEST(ImpactDetector, FirstImpactWithLinesFromTheStart) {
+  for (double fs : {25600.0, 51200.0}) {
+    for (double first : {0.0025, 0.005, 0.0064, 0.010, 0.020, 0.030, 0.040}) {
+      Options o;
+      o.fs = fs;
+      o.seconds = 0.3;
+      o.line_550 = 0.125;
+      o.line_1100 = 0.09;
+      for (double t = first; t < 0.28; t += 0.04) o.onset_s.push_back(t);
+      const Signal s = make(o);
+      ImpactDetector d(ImpactDetectorConfig{}, fs, 4096);
+      const auto got = detect(d, s.x, 4096);
+      expect_onsets(got, s.onsets, 0.0002 * fs, "lines from the start");
+    }
+  }
+}
+
+// The same with the simulator: mesh_stiffness_variation and transmission_error run from t = 0, the
+// crack angle puts the first impact at 6.4, 20 or 30 ms. Tolerance 0.2 ms from the start of the
+// 0.15 ms force pulse (the issue's onset accuracy on the simulated rig).
+TEST(ImpactDetector, FirstImpactOfSimulatedRecordWithMeshLines) {
+  for (const char* effect : {"mesh_stiffness_variation", "transmission_error"}) {
+    for (double crack : {1.0, std::numbers::pi, 1.5 * std::numbers::pi}) {
+      model::RigParameters rig;
+      rig.crack_angle_rad = crack;
+      model::SimulationSettings st;
+      st.duration_s = 0.25;
+      st.sample_rate_hz = 25600.0;
+      const auto r = model::simulate(rig, {{effect, {}}, {"noise", {{"std_rel", 0.005}}}}, st);
+      std::vector<float> x(r.output.begin(), r.output.end());
+      std::vector<std::uint64_t> truth;
+      for (const auto& imp : r.impacts)
+        if (imp.t_s < 0.2) truth.push_back(static_cast<std::uint64_t>(std::ceil(imp.t_s * st.sample_rate_hz)));
+      ImpactDetector d(ImpactDetectorConfig{}, st.sample_rate_hz, 4096);
+      std::vector<std::uint64_t> got;
+      for (std::uint64_t o : detect(d, x, 4096))
+        if (static_cast<double>(o) < 0.201 * st.sample_rate_hz) got.push_back(o);  // the compared span
+      ASSERT_EQ(got.size(), truth.size()) << effect << " crack " << crack;
+      // The simulated rig starts at rest and rings at its natural frequency when the mesh excitation
+      // switches on with the record (about 40 % of an impact's amplitude, decaying with the same
+      // zeta): an impact within the first ~10 ms sits on that ring and interferes with it coherently,
+      // which moves the 50 % crossing of the envelope. Measured up to 0.31 ms at 6.4 ms; allowed
+      // 0.5 ms there (the issue's requirement is +-1 ms), 0.2 ms for the later impacts.
+      for (std::size_t i = 0; i < truth.size(); ++i) {
+        const double tol = (static_cast<double>(truth[i]) < 0.012 * st.sample_rate_hz ? 0.0005 : 0.0002) * st.sample_rate_hz;
+        EXPECT_LE(std::abs(static_cast<double>(got[i]) - static_cast<double>(truth[i])), tol)
+            << effect << " crack " << crack << ": impact " << i << " at " << truth[i] << " detected at " << got[i];
+      }
+    }
+  }
+}
+
+// Decision delay: samples from the true onset until the detection is reported, for strong and
+// barely detectable impacts at every block position; it never exceeds report_delay_samples(), which
+// is lookback_samples() + decision_delay_samples() (what StreamProcessor waits after a window's end).
+TEST(ImpactDetector, DecisionDelayIsBoundedAndMeasured) {
+  for (double fs : {25600.0, 51200.0}) {
+    const ImpactDetectorConfig cfg;
+    ImpactDetector d(cfg, fs, 4096);
+    EXPECT_EQ(d.report_delay_samples(), d.lookback_samples() + d.decision_delay_samples());
+    std::size_t worst = 0;
+    for (double amplitude : {0.5, 0.05, 0.02, 0.012}) {
+      Options o;
+      o.fs = fs;
+      o.amplitude = amplitude;
+      o.noise_sd = 0.001;  // weakest impact: peak 12x the noise sd, near the trigger ratio
+      o.seconds = 0.05 * static_cast<double>(d.decimation()) + 0.1;
+      for (std::size_t p = 0; p < d.decimation(); ++p)
+        o.onset_s.push_back(0.0603 + 0.05 * static_cast<double>(p) + static_cast<double>(p) / fs);
+      const Signal s = make(o);
+      d.restart(0);
+      std::size_t next = 0;
+      for (std::size_t i = 0; i < s.x.size(); ++i) {
+        d.push(s.x[i]);
+        while (d.has_onset()) {
+          const std::uint64_t onset = d.pop_onset();
+          ASSERT_LT(next, s.onsets.size()) << "amplitude " << amplitude << ": extra onset " << onset;
+          ASSERT_GE(i, s.onsets[next]) << "amplitude " << amplitude << ": onset " << onset << " reported early";
+          const std::size_t delay = i - s.onsets[next];
+          EXPECT_LE(delay, d.report_delay_samples()) << "amplitude " << amplitude;
+          worst = std::max(worst, delay);
+          ++next;
+        }
+      }
+      EXPECT_EQ(next, s.onsets.size()) << "amplitude " << amplitude;
+    }
+    std::cout << "fs " << fs << ": measured max report delay " << worst << " samples ("
+              << 1e3 * static_cast<double>(worst) / fs << " ms); bound report_delay_samples() "
+              << d.report_delay_samples() << " (" << 1e3 * static_cast<double>(d.report_delay_samples()) / fs
+              << " ms) = lookback " << d.lookback_samples() << " + decision " << d.decision_delay_samples() << "\n";
+    // The previous design's bound was 13.9 ms (look-back 7.6 ms + refinement 6.3 ms) at the defaults;
+    // this one: max(peak 6.6 ms + 1 ms, look-back 7.7 ms + confirmation 1.6 ms) + block and spike delay.
+    EXPECT_LE(static_cast<double>(d.report_delay_samples()) / fs, 0.010);
+  }
+}
+
+}  // namespace
+}  // namespace ridgewatch::pipeline
