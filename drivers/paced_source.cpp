@@ -26,9 +26,18 @@ std::size_t PacedSource::read(std::span<double> out) {
     start_ = std::chrono::steady_clock::now();
     started_ = true;
   }
+  if (pending_error_) std::rethrow_exception(std::exchange(pending_error_, nullptr));
   std::size_t filled = 0;
   while (filled < out.size() && !ended_) {
-    const std::size_t n = inner_->read(out.subspan(filled));
+    std::size_t n = 0;
+    try {
+      n = inner_->read(out.subspan(filled));
+    } catch (...) {
+      if (filled == 0) throw;
+      pending_error_ = std::current_exception();
+      ended_ = true;
+      break;
+    }
     filled += n;
     samples_this_pass_ += n;
     if (n > 0) continue;

@@ -15,6 +15,7 @@
 // source that yields no samples in a whole pass ends the stream (read() returns 0) instead of spinning.
 #pragma once
 
+#include <exception>
 #include <condition_variable>
 #include <mutex>
 
@@ -69,6 +70,9 @@ class PacedSource : public SampleSource {
   std::uint64_t loops_completed_ = 0;
   std::uint64_t samples_this_pass_ = 0;
   bool ended_ = false;
+  /// An error of the inner source after some samples of the same read(): those samples are delivered
+  /// first and the error is rethrown by the next read(), so no good sample is lost.
+  std::exception_ptr pending_error_;
   std::mutex stop_mutex_;
   std::condition_variable stop_cv_;
   bool stop_requested_ = false;

@@ -145,3 +145,35 @@ TEST(PacedSource, ReplayFileErrorsPropagate) {
 }
 
 }  // namespace
+
+// An inner source that fails part-way through a read (a NaN sample in a replayed file: the reader
+// delivers the good samples before it and throws on its next call). The decorator refills a large
+// block with several inner reads; the good samples read before the failure must reach the caller,
+// and the error must come on the following read(), not be swallowed or lose those samples.
+TEST(PacedSource, ErrorAfterSomeSamplesDeliversThemFirst) {
+  class FailingSource : public RampSource {
+   public:
+    FailingSource() : RampSource(8000.0, 1000000, 100) {}
+    std::size_t read(std::span<double> out) override {
+      if (calls_++ == 3) throw std::runtime_error("ramp: sample 300 is NaN");
+      return RampSource::read(out);
+    }
+
+   private:
+    int calls_ = 0;
+  };
+  rd::PacedSource source([] { return std::make_unique<FailingSource>(); }, {.speed = 0.0, .loop = false});
+  std::vector<double> buf(1000);
+  ASSERT_EQ(source.read(buf), 300u);  // three inner reads of 100, then the failure
+  for (std::size_t i = 0; i < 300; ++i) ASSERT_EQ(buf[i], static_cast<double>(i));
+  EXPECT_THROW(
+      {
+        try {
+          source.read(buf);
+        } catch (const std::runtime_error& e) {
+          EXPECT_STREQ(e.what(), "ramp: sample 300 is NaN");
+          throw;
+        }
+      },
+      std::runtime_error);
+}
