@@ -31,8 +31,8 @@ struct Fftw<double> {
   static Plan plan_r2c(int n, double* in, Complex* out, unsigned flags) {
     return fftw_plan_dft_r2c_1d(n, in, out, flags);
   }
-  static Plan plan_c2c_backward(int n, Complex* inout, unsigned flags) {
-    return fftw_plan_dft_1d(n, inout, inout, FFTW_BACKWARD, flags);
+  static Plan plan_c2c_backward(int n, Complex* in, Complex* out, unsigned flags) {
+    return fftw_plan_dft_1d(n, in, out, FFTW_BACKWARD, flags);
   }
   static void execute(Plan p) { fftw_execute(p); }
   static void destroy(Plan p) { fftw_destroy_plan(p); }
@@ -48,8 +48,8 @@ struct Fftw<float> {
   static Plan plan_r2c(int n, float* in, Complex* out, unsigned flags) {
     return fftwf_plan_dft_r2c_1d(n, in, out, flags);
   }
-  static Plan plan_c2c_backward(int n, Complex* inout, unsigned flags) {
-    return fftwf_plan_dft_1d(n, inout, inout, FFTW_BACKWARD, flags);
+  static Plan plan_c2c_backward(int n, Complex* in, Complex* out, unsigned flags) {
+    return fftwf_plan_dft_1d(n, in, out, FFTW_BACKWARD, flags);
   }
   static void execute(Plan p) { fftwf_execute(p); }
   static void destroy(Plan p) { fftwf_destroy_plan(p); }
@@ -119,7 +119,10 @@ struct MorletCwt<Real>::Impl {
 
   Real* time_buf = nullptr;                  // L reals
   typename F::Complex* spectrum = nullptr;   // L/2 + 1
-  typename F::Complex* work = nullptr;       // D
+  typename F::Complex* work = nullptr;       // D: one row's folded band
+  // D: its inverse transform. Out of place: FFTW's in-place plans for some lengths (80 at the rig's
+  // rates) allocate a buffer inside every execute, which breaks the real-time contract.
+  typename F::Complex* work_out = nullptr;
   Real* weights = nullptr;                   // min(D, L/2 + 1): one row's filter gains
   typename F::Plan forward = nullptr;
   typename F::Plan backward = nullptr;
@@ -134,6 +137,7 @@ struct MorletCwt<Real>::Impl {
     F::free(time_buf);
     F::free(spectrum);
     F::free(work);
+    F::free(work_out);
     F::free(weights);
   }
 
@@ -228,7 +232,7 @@ struct MorletCwt<Real>::Impl {
                   sizeof(typename F::Complex) * (short_len - s0 - first));
     F::execute(backward);
     // fftw_complex and std::complex<Real> have the same layout (both are Real[2]).
-    std::memcpy(static_cast<void*>(out), static_cast<const void*>(work), sizeof(std::complex<Real>) * n_out);
+    std::memcpy(static_cast<void*>(out), static_cast<const void*>(work_out), sizeof(std::complex<Real>) * n_out);
   }
 };
 
@@ -293,11 +297,12 @@ MorletCwt<Real>::MorletCwt(MorletCwtConfig config) : impl_(std::make_unique<Impl
   im.time_buf = F::alloc_real(im.fft_len);
   im.spectrum = F::alloc_complex(im.fft_len / 2 + 1);
   im.work = F::alloc_complex(im.short_len);
+  im.work_out = F::alloc_complex(im.short_len);
   im.weights = F::alloc_real(std::min(im.short_len, im.fft_len / 2 + 1));
-  if (!im.time_buf || !im.spectrum || !im.work || !im.weights) throw std::bad_alloc();
+  if (!im.time_buf || !im.spectrum || !im.work || !im.work_out || !im.weights) throw std::bad_alloc();
   const unsigned flags = im.cfg.measure_plans ? FFTW_MEASURE : FFTW_ESTIMATE;
   im.forward = F::plan_r2c(static_cast<int>(im.fft_len), im.time_buf, im.spectrum, flags);
-  im.backward = F::plan_c2c_backward(static_cast<int>(im.short_len), im.work, flags);
+  im.backward = F::plan_c2c_backward(static_cast<int>(im.short_len), im.work, im.work_out, flags);
   if (!im.forward || !im.backward) throw std::runtime_error("MorletCwt: FFTW could not make a plan");
 }
 

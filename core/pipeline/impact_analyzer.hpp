@@ -87,6 +87,13 @@ class ImpactAnalyzer {
   std::vector<double> scratch_;                  // median of a row
   std::vector<std::size_t> fitter_len_;          // segment lengths of the ML fitters
   std::vector<std::unique_ptr<dsp::SpectralModeFitter>> fitters_;
+  dsp::EnvelopeWorkspace envelope_ws_;           // line-fit scratch, reserved for max columns
+  dsp::MlFitResult ml_result_;                   // reused: modes reserved for one guess
+
+  /// White-noise variance gain of the band-limited row at f (noise_gain), from the nearest grid row:
+  /// the discrete filter's gain is proportional to f (4 sqrt(pi) f / (eta0 fs), the Gaussian spans
+  /// ~6 bins per sd, so the sampled sum equals the integral to rounding).
+  double gain_at(double f_hz) const;
 };
 
 }  // namespace ridgewatch::pipeline
