@@ -204,27 +204,70 @@ struct MorletCwt<Real>::Impl {
     }
   }
 
-  void compute_row(double f_hz, std::complex<Real>* out, std::size_t n_out) {
-    std::size_t k_lo = 0, k_hi = 0;
+  // Filter gains of row f: weights[0..count) for bins k_lo.., with the half weights on the jump of the
+  // analytic filter (DC, and Nyquist for even L): the DFT of the sampled, periodised analytic kernel
+  // takes the mid value there (Fourier series at a jump).
+  void row_weights(double f_hz, std::size_t& k_lo, std::size_t& count) {
+    std::size_t k_hi = 0;
     double a = 0.0;
     band(f_hz, k_lo, k_hi, a);
-    const std::size_t count = k_hi - k_lo + 1;
+    count = k_hi - k_lo + 1;
     if (count > short_len)
       throw std::invalid_argument("MorletCwt::row: frequency " + std::to_string(f_hz) +
                                   " Hz exceeds the band-limited grid (max " +
                                   std::to_string(band_limit()) + " Hz)");
     fill_weights(k_lo, count, a);
-    // Bins on the jump of the analytic filter (DC, and Nyquist for even L) take half weight: the DFT
-    // of the sampled, periodised analytic kernel takes the mid value there (Fourier series at a jump).
     if (k_lo == 0) weights[0] *= Real{0.5};
     if (fft_len % 2 == 0 && k_hi == fft_len / 2) weights[count - 1] *= Real{0.5};
+  }
+
+  void compute_row(double f_hz, std::complex<Real>* out, std::size_t n_out) {
+    std::size_t k_lo = 0, count = 0;
+    row_weights(f_hz, k_lo, count);
+    apply_row(k_lo, count, weights, out, n_out);
+  }
+
+  // Configured rows: their gains are made once (cache_grid) and reused by every load.
+  std::vector<Real> grid_weights;
+  std::vector<std::size_t> grid_offset, grid_k_lo, grid_count;
+  void cache_grid() {
+    const std::vector<double>& f = cfg.frequencies_hz;
+    std::size_t total = 0;
+    grid_offset.resize(f.size());
+    grid_k_lo.resize(f.size());
+    grid_count.resize(f.size());
+    for (std::size_t r = 0; r < f.size(); ++r) {
+      std::size_t k_hi = 0;
+      double a = 0.0;
+      band(f[r], grid_k_lo[r], k_hi, a);
+      grid_count[r] = k_hi - grid_k_lo[r] + 1;
+      grid_offset[r] = total;
+      total += grid_count[r];
+    }
+    if (total > (std::size_t{1} << 22)) {  // > 32 MB: compute per call instead
+      grid_offset.clear();
+      return;
+    }
+    grid_weights.resize(total);
+    for (std::size_t r = 0; r < f.size(); ++r) {
+      std::size_t k_lo = 0, count = 0;
+      row_weights(f[r], k_lo, count);
+      std::copy(weights, weights + count, grid_weights.begin() + static_cast<std::ptrdiff_t>(grid_offset[r]));
+    }
+  }
+  void compute_grid_row(std::size_t r, std::complex<Real>* out, std::size_t n_out) {
+    if (grid_offset.empty()) return compute_row(cfg.frequencies_hz[r], out, n_out);
+    apply_row(grid_k_lo[r], grid_count[r], grid_weights.data() + grid_offset[r], out, n_out);
+  }
+
+  void apply_row(std::size_t k_lo, std::size_t count, const Real* w, std::complex<Real>* out, std::size_t n_out) {
     // Bin k goes to slot k mod D: the band occupies `count` consecutive slots (mod D) starting at s0,
     // i.e. at most two contiguous runs; only the remaining slots need zeroing.
     const std::size_t s0 = k_lo % short_len;
     const std::size_t first = std::min(count, short_len - s0);
     const std::size_t second = count - first;
-    weigh(weights, spectrum + k_lo, work + s0, first);
-    weigh(weights + first, spectrum + k_lo + first, work, second);
+    weigh(w, spectrum + k_lo, work + s0, first);
+    weigh(w + first, spectrum + k_lo + first, work, second);
     if (s0 > second)
       std::memset(static_cast<void*>(work + second), 0, sizeof(typename F::Complex) * (s0 - second));
     if (second == 0 && s0 + first < short_len)
@@ -304,6 +347,7 @@ MorletCwt<Real>::MorletCwt(MorletCwtConfig config) : impl_(std::make_unique<Impl
   im.forward = F::plan_r2c(static_cast<int>(im.fft_len), im.time_buf, im.spectrum, flags);
   im.backward = F::plan_c2c_backward(static_cast<int>(im.short_len), im.work, im.work_out, flags);
   if (!im.forward || !im.backward) throw std::runtime_error("MorletCwt: FFTW could not make a plan");
+  im.cache_grid();
 }
 
 template <typename Real>
@@ -344,8 +388,16 @@ void MorletCwt<Real>::transform(std::span<const Real> signal, Scalogram<Real>& o
   out.time_step_s = time_step_s();
   out.decimation = im.dec;
   out.frequencies_hz.assign(im.cfg.frequencies_hz.begin(), im.cfg.frequencies_hz.end());
-  for (std::size_t r = 0; r < out.rows; ++r)
-    impl_->compute_row(im.cfg.frequencies_hz[r], out.data.data() + r * out.cols, out.cols);
+  for (std::size_t r = 0; r < out.rows; ++r) impl_->compute_grid_row(r, out.data.data() + r * out.cols, out.cols);
+}
+
+template <typename Real>
+void MorletCwt<Real>::row_at(std::size_t index, std::span<std::complex<Real>> out) {
+  Impl& im = *impl_;
+  if (im.n_loaded == 0) throw std::logic_error("MorletCwt::row_at called before load");
+  if (index >= im.cfg.frequencies_hz.size()) throw std::invalid_argument("MorletCwt::row_at: index out of range");
+  if (out.size() < columns()) throw std::invalid_argument("MorletCwt::row_at: output too short");
+  im.compute_grid_row(index, out.data(), columns());
 }
 
 template <typename Real>

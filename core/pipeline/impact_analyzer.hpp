@@ -81,7 +81,9 @@ class ImpactAnalyzer {
   std::size_t n_pre_ = 0, n_win_ = 0, n_ml_margin_ = 0;
   std::vector<double> rows_hz_;
   std::vector<double> row_gain_;                 // cwt_->noise_gain(rows_hz_[r]), computed once
-  std::unique_ptr<dsp::MorletCwt<double>> cwt_;
+  std::unique_ptr<dsp::MorletCwt<float>> cwt_;
+  std::vector<float> xf_;                        // the window in single precision (CWT input)
+  std::vector<std::complex<float>> wf_;          // one row as computed
   std::vector<double> power_;                    // rows x cols |W|^2
   std::vector<std::complex<double>> w_;          // one row
   std::vector<double> scratch_;                  // median of a row
