@@ -11,6 +11,9 @@ namespace ridgewatch::pipeline {
 namespace {
 
 constexpr double kTwoPi = 2.0 * std::numbers::pi;
+// A ridge that strays from the mode after its power fell this far below its peak (15 dB) marks the
+// end of the free response (the motion stopped), not a lost ridge.
+constexpr double kEndedPowerDrop = 0.0316;
 
 ImpactStatus from_estimate(dsp::EstimateStatus s) {
   switch (s) {
@@ -60,6 +63,7 @@ ImpactAnalyzer::ImpactAnalyzer(const ImpactAnalyzerConfig& cfg, double fs) {
   wf_.assign(max_cols, {});
   xf_.assign(max_samples(), 0.0f);
   scratch_.assign(max_cols, 0.0);
+  row_median_.assign(rows, 0.0);
   envelope_ws_.reserve(max_cols, max_cols);
   ml_result_.modes.reserve(1);
   // ML fitters for segments of k/8 of the full decay window, k = 1..8 (at least 64 samples). The
@@ -152,6 +156,7 @@ ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
     std::nth_element(scratch_.begin(), scratch_.begin() + static_cast<std::ptrdiff_t>(mid),
                      scratch_.begin() + static_cast<std::ptrdiff_t>(cols));
     const double med = scratch_[mid];
+    row_median_[r] = med;
     for (std::size_t c = 0; c < cols; ++c) p[c] -= med;
   }
   auto pw = [&](std::size_t r, std::size_t c) { return power_[r * cols + c]; };
@@ -170,8 +175,24 @@ ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
         c0 = c;
       }
   bool ridge_lost = r0 == 0 || r0 + 1 == rows;
+  // Columns [0, ridge_end) hold the free response; ridge_ended: it stopped before the window end.
+  // A free response that stops (dry friction: the motion sticks once the amplitude is small) leaves
+  // the transform's response to the stop: the row's power then falls like the kernel's Gaussian,
+  // exp(-(t - t_stop)^2 / s^2), ever faster, and the lower rows (longer kernels) keep it longest, so
+  // the maximum walks down the band. Two signs of a stop, on the ridge's own power (median added back,
+  // so that the subtraction does not fake an acceleration):
+  //  - its decay per column exceeds twice the early decay plus 0.4 (a ridge 20 dB above the noise
+  //    fluctuates by ~0.2 in ln power) in two consecutive columns, and the rows within a filter sd of
+  //    the mode never regain that power later (a beat of two close modes recovers);
+  //  - the ridge strays from the mode after its power fell 15 dB below the peak.
+  // Either ends the ridge there (not ridge_lost; a ridge that strays while strong is still lost).
+  std::size_t ridge_end = cols;
+  bool ridge_ended = false;
   double prof[3] = {0.0, 0.0, 0.0};  // ridge energy in rows r0-1, r0, r0+1
   {
+    const auto width_cols = std::max<std::size_t>(1, static_cast<std::size_t>(std::ceil(kernel_s / dt)));
+    auto raw = [&](std::size_t r, std::size_t c) { return pw(r, c) + row_median_[r]; };
+    double early_decay = NAN;  // ln power per column over the first kernel width after 2 widths
     std::size_t r = r0;
     for (std::size_t c = c0; c < last_col; ++c) {
       if (c > c0) {
@@ -180,9 +201,36 @@ ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
         if (r + 1 < rows && pw(r + 1, c) > pw(best, c)) best = r + 1;
         r = best;
       }
-      if (pw(r, c) < 100.0 * (noise_var * row_gain_[r])) break;  // 20 dB: the strong part of the decay
-      if (r == 0 || r + 1 == rows || std::abs(std::log(rows_hz_[r] / rows_hz_[r0])) > 1.0 / eta0_)
+      const double floor = 100.0 * (noise_var * row_gain_[r]);
+      if (c == c0 + 3 * width_cols && raw(r, c) > 0)
+        early_decay = std::log(raw(r0, c0 + 2 * width_cols) / raw(r, c)) / static_cast<double>(width_cols);
+      if (!ridge_lost && std::isfinite(early_decay) && early_decay > 0 && c > c0 + 3 * width_cols &&
+          c + 1 < last_col && raw(r, c + 1) >= floor) {
+        const double fast = 2.0 * early_decay + 0.4;
+        if (std::log(raw(r, c - 1) / raw(r, c)) > fast && std::log(raw(r, c) / raw(r, c + 1)) > fast) {
+          bool recovers = false;
+          for (std::size_t c2 = c + 2; c2 < last_col && !recovers; ++c2)
+            for (std::size_t r2 = 0; r2 < rows; ++r2)
+              if (std::abs(std::log(rows_hz_[r2] / rows_hz_[r0])) <= 1.0 / eta0_ && raw(r2, c2) >= raw(r, c)) {
+                recovers = true;
+                break;
+              }
+          if (!recovers) {
+            ridge_end = c;
+            ridge_ended = true;
+            break;
+          }
+        }
+      }
+      if (pw(r, c) < floor) break;  // 20 dB: the strong part of the decay
+      if (r == 0 || r + 1 == rows || std::abs(std::log(rows_hz_[r] / rows_hz_[r0])) > 1.0 / eta0_) {
+        if (!ridge_lost && pw(r, c) <= kEndedPowerDrop * pw(r0, c0)) {
+          ridge_end = c;
+          ridge_ended = true;
+          break;
+        }
         ridge_lost = true;
+      }
       if (r0 > 0 && r0 + 1 < rows)
         for (std::size_t k = 0; k < 3; ++k) prof[k] += pw(r0 - 1 + k, c);
     }
@@ -201,7 +249,10 @@ ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
   const double band_lo = rows_hz_.front(), band_hi = rows_hz_.back();
   dsp::EnvelopeOptions env;
   env.onset_s = onset_s;
-  dsp::EnvelopeRow row{w, dt, f_ridge, eta0_, row_noise(f_ridge)};
+  // A stopped free response: the envelope estimators see the row up to the ridge's end as if the
+  // record ended there (choose_window skips the edge_widths kernel widths before it, which hold the
+  // transform's response to the stop).
+  dsp::EnvelopeRow row{w.first(ridge_end), dt, f_ridge, eta0_, row_noise(f_ridge)};
   row.phase_reference_hz = f_ridge;
   cwt_row(f_ridge);
   dsp::EnvelopeWindow ew = dsp::choose_window(row, env);
@@ -226,11 +277,20 @@ ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
   dsp::DampingEstimate ml;
   ml.method = dsp::DampingMethod::ml;
   ml.status = dsp::EstimateStatus::too_short;
+  // The segment ends with the window, or for a stopped free response 2 kernel widths before the
+  // ridge's end (the ridge strays 1-2 widths after the stop, when the longer kernels of the lower rows
+  // hold more of the response than the mode's row).
   const std::size_t seg0 = o + n_ml_margin_;
-  if (method_ == dsp::DampingMethod::ml && seg0 < n) {
+  std::size_t seg_end = n;
+  if (ridge_ended) {
+    const auto back = static_cast<std::size_t>(std::ceil(2.0 * kernel_s * fs_));
+    const std::size_t stop = ridge_end * cwt_->decimation();
+    seg_end = std::min(n, stop > back ? stop - back : 0);
+  }
+  if (method_ == dsp::DampingMethod::ml && seg0 < seg_end) {
     std::size_t pick = fitter_len_.size();
     for (std::size_t k = 0; k < fitter_len_.size(); ++k)
-      if (fitter_len_[k] <= n - seg0) pick = k;
+      if (fitter_len_[k] <= seg_end - seg0) pick = k;
     if (pick < fitter_len_.size()) {
       const double zeta0 = (std::isfinite(rls.zeta) && rls.zeta > 1e-4 && rls.zeta < 0.5) ? rls.zeta : 0.02;
       const dsp::ModeGuess guess{f_d, zeta0};
@@ -287,6 +347,9 @@ ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
   }
   if (computed != ImpactStatus::window_cut) {
     if (ridge_lost) computed = ImpactStatus::ridge_lost;
+    // The free response stopped so early that no envelope window is left between the edge skips:
+    // the values are the equivalent viscous estimate over the short segment, not a trusted one.
+    else if (ridge_ended && ew.status == dsp::EstimateStatus::too_short) computed = ImpactStatus::too_short;
     else if (!(snr_db >= min_snr_db_) || ew.status == dsp::EstimateStatus::low_snr) computed = ImpactStatus::low_snr;
   }
   return finish(computed);
