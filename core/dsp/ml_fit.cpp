@@ -265,10 +265,11 @@ double normal_equations(const Problem& p, const SmallVec& x, SmallMat* A, SmallV
   return rss;
 }
 
-// Minimises the RSS from x (updated in place). Stops when the next step would change the scaled
-// parameters by less than 1e-10 of their scaled norm, or an accepted step reduced the RSS by less than
-// 1e-12 of itself (the MINPACK xtol/ftol tests; the general path uses 1e-12 for both), or no damping
-// makes a step reduce the RSS (the minimum to rounding). On return A holds the normal matrix at x and
+// Minimises the RSS from x (updated in place). Stops when the next step would change every mode's
+// frequency by less than 1e-9 and its zeta by less than 1e-7 (relative; or the scaled parameters by
+// less than 1e-12 of their norm), or an accepted step reduced the RSS by less than 1e-12 of itself
+// (MINPACK's ftol; the general path uses 1e-12 for ftol and xtol), or no damping makes a step reduce
+// the RSS (the minimum to rounding). On return A holds the normal matrix at x and
 // rss the RSS there. Returns false when max_evaluations ran out first.
 bool minimise_small(const Problem& p, SmallVec& x, int max_evaluations, SmallMat& A, double& rss) {
   const int n = p.params();
@@ -288,7 +289,18 @@ bool minimise_small(const Problem& p, SmallVec& x, int max_evaluations, SmallMat
       m.diagonal().array() += lambda;
       const Eigen::LDLT<SmallMat> ldlt(m);
       step = ldlt.solve(g.cwiseQuotient(d)).cwiseQuotient(d);
-      if (!(step.cwiseProduct(d).norm() > 1e-10 * x_norm)) return step.allFinite();
+      // Converged: the Gauss-Newton step (lambda is tiny by now) changes f by < 1e-9 relative and
+      // zeta by < 1e-7 relative. Convergence is quadratic there, so the step is taken without
+      // another evaluation: x + step is within ~(1e-7)^2 of the minimum (A and rss stay those of x,
+      // which the covariance does not notice at this distance).
+      bool small = step.allFinite();
+      for (int j = 0; j < p.modes && small; ++j)
+        small = std::abs(step[kPerMode * j]) <= 1e-9 * std::abs(x[kPerMode * j]) &&
+                std::abs(step[kPerMode * j + 1]) <= 1e-7;
+      if (small || !(step.cwiseProduct(d).norm() > 1e-12 * x_norm)) {
+        if (step.allFinite()) x += step;
+        return step.allFinite();
+      }
       trial = x + step;
       rss_trial = normal_equations(p, trial, nullptr, nullptr);
       if (++evaluations >= max_evaluations) return false;
