@@ -34,6 +34,9 @@ struct Fftw<double> {
   static Plan plan_c2c_backward(int n, Complex* in, Complex* out, unsigned flags) {
     return fftw_plan_dft_1d(n, in, out, FFTW_BACKWARD, flags);
   }
+  static Plan plan_c2c_backward_many(int n, int howmany, Complex* in, Complex* out, unsigned flags) {
+    return fftw_plan_many_dft(1, &n, howmany, in, nullptr, 1, n, out, nullptr, 1, n, FFTW_BACKWARD, flags);
+  }
   static void execute(Plan p) { fftw_execute(p); }
   static void destroy(Plan p) { fftw_destroy_plan(p); }
 };
@@ -50,6 +53,9 @@ struct Fftw<float> {
   }
   static Plan plan_c2c_backward(int n, Complex* in, Complex* out, unsigned flags) {
     return fftwf_plan_dft_1d(n, in, out, FFTW_BACKWARD, flags);
+  }
+  static Plan plan_c2c_backward_many(int n, int howmany, Complex* in, Complex* out, unsigned flags) {
+    return fftwf_plan_many_dft(1, &n, howmany, in, nullptr, 1, n, out, nullptr, 1, n, FFTW_BACKWARD, flags);
   }
   static void execute(Plan p) { fftwf_execute(p); }
   static void destroy(Plan p) { fftwf_destroy_plan(p); }
@@ -126,6 +132,10 @@ struct MorletCwt<Real>::Impl {
   Real* weights = nullptr;                   // min(D, L/2 + 1): one row's filter gains
   typename F::Plan forward = nullptr;
   typename F::Plan backward = nullptr;
+  // All configured rows at once (band-limited mode with cached gains): one batched inverse FFT.
+  typename F::Complex* grid_work = nullptr;      // rows x D
+  typename F::Complex* grid_work_out = nullptr;  // rows x D
+  typename F::Plan grid_backward = nullptr;
 
   // Lanes of the Gaussian recurrence (independent chains, so the compiler can vectorise them).
   static constexpr std::size_t kLanes = 8;
@@ -134,6 +144,9 @@ struct MorletCwt<Real>::Impl {
     std::lock_guard<std::mutex> lock(fftw_planner_mutex());
     if (forward) F::destroy(forward);
     if (backward) F::destroy(backward);
+    if (grid_backward) F::destroy(grid_backward);
+    F::free(grid_work);
+    F::free(grid_work_out);
     F::free(time_buf);
     F::free(spectrum);
     F::free(work);
@@ -260,19 +273,39 @@ struct MorletCwt<Real>::Impl {
     apply_row(grid_k_lo[r], grid_count[r], grid_weights.data() + grid_offset[r], out, n_out);
   }
 
-  void apply_row(std::size_t k_lo, std::size_t count, const Real* w, std::complex<Real>* out, std::size_t n_out) {
+  // Folds the weighted band of a row into the D slots of `dst` (the inverse FFT's input).
+  void fold_row(std::size_t k_lo, std::size_t count, const Real* w, typename F::Complex* dst) const {
     // Bin k goes to slot k mod D: the band occupies `count` consecutive slots (mod D) starting at s0,
     // i.e. at most two contiguous runs; only the remaining slots need zeroing.
     const std::size_t s0 = k_lo % short_len;
     const std::size_t first = std::min(count, short_len - s0);
     const std::size_t second = count - first;
-    weigh(w, spectrum + k_lo, work + s0, first);
-    weigh(w + first, spectrum + k_lo + first, work, second);
+    weigh(w, spectrum + k_lo, dst + s0, first);
+    weigh(w + first, spectrum + k_lo + first, dst, second);
     if (s0 > second)
-      std::memset(static_cast<void*>(work + second), 0, sizeof(typename F::Complex) * (s0 - second));
+      std::memset(static_cast<void*>(dst + second), 0, sizeof(typename F::Complex) * (s0 - second));
     if (second == 0 && s0 + first < short_len)
-      std::memset(static_cast<void*>(work + s0 + first), 0,
+      std::memset(static_cast<void*>(dst + s0 + first), 0,
                   sizeof(typename F::Complex) * (short_len - s0 - first));
+  }
+
+  // All configured rows into out (rows x n_out, row-major) with one batched inverse FFT.
+  void compute_grid(std::complex<Real>* out, std::size_t n_out) {
+    const std::size_t rows = cfg.frequencies_hz.size();
+    if (!grid_backward) {
+      for (std::size_t r = 0; r < rows; ++r) compute_grid_row(r, out + r * n_out, n_out);
+      return;
+    }
+    for (std::size_t r = 0; r < rows; ++r)
+      fold_row(grid_k_lo[r], grid_count[r], grid_weights.data() + grid_offset[r], grid_work + r * short_len);
+    F::execute(grid_backward);
+    for (std::size_t r = 0; r < rows; ++r)
+      std::memcpy(static_cast<void*>(out + r * n_out), static_cast<const void*>(grid_work_out + r * short_len),
+                  sizeof(std::complex<Real>) * n_out);
+  }
+
+  void apply_row(std::size_t k_lo, std::size_t count, const Real* w, std::complex<Real>* out, std::size_t n_out) {
+    fold_row(k_lo, count, w, work);
     F::execute(backward);
     // fftw_complex and std::complex<Real> have the same layout (both are Real[2]).
     std::memcpy(static_cast<void*>(out), static_cast<const void*>(work_out), sizeof(std::complex<Real>) * n_out);
@@ -348,6 +381,17 @@ MorletCwt<Real>::MorletCwt(MorletCwtConfig config) : impl_(std::make_unique<Impl
   im.backward = F::plan_c2c_backward(static_cast<int>(im.short_len), im.work, im.work_out, flags);
   if (!im.forward || !im.backward) throw std::runtime_error("MorletCwt: FFTW could not make a plan");
   im.cache_grid();
+  // Batched plan for all configured rows, when their gains are cached and the batch is small (the
+  // impact analyzer's 14 rows of 80 slots; full transforms keep one row at a time).
+  const std::size_t n_rows = im.cfg.frequencies_hz.size();
+  if (!im.grid_offset.empty() && n_rows > 1 && n_rows * im.short_len <= (std::size_t{1} << 16)) {
+    im.grid_work = F::alloc_complex(n_rows * im.short_len);
+    im.grid_work_out = F::alloc_complex(n_rows * im.short_len);
+    if (!im.grid_work || !im.grid_work_out) throw std::bad_alloc();
+    im.grid_backward = F::plan_c2c_backward_many(static_cast<int>(im.short_len), static_cast<int>(n_rows),
+                                                 im.grid_work, im.grid_work_out, flags);
+    if (!im.grid_backward) throw std::runtime_error("MorletCwt: FFTW could not make a plan");
+  }
 }
 
 template <typename Real>
@@ -398,6 +442,15 @@ void MorletCwt<Real>::row_at(std::size_t index, std::span<std::complex<Real>> ou
   if (index >= im.cfg.frequencies_hz.size()) throw std::invalid_argument("MorletCwt::row_at: index out of range");
   if (out.size() < columns()) throw std::invalid_argument("MorletCwt::row_at: output too short");
   im.compute_grid_row(index, out.data(), columns());
+}
+
+template <typename Real>
+void MorletCwt<Real>::grid_rows(std::span<std::complex<Real>> out) {
+  Impl& im = *impl_;
+  if (im.n_loaded == 0) throw std::logic_error("MorletCwt::grid_rows called before load");
+  if (out.size() < im.cfg.frequencies_hz.size() * columns())
+    throw std::invalid_argument("MorletCwt::grid_rows: output too short");
+  im.compute_grid(out.data(), columns());
 }
 
 template <typename Real>

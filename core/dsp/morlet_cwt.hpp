@@ -120,6 +120,9 @@ class MorletCwt {
   /// The row of configured frequency frequencies_hz()[index], identical to row(frequencies_hz()[index])
   /// but with the filter gains made once in the constructor (the same for every load).
   void row_at(std::size_t index, std::span<std::complex<Real>> out);
+  /// All configured rows, row-major (frequencies_hz().size() x columns()), equal to row_at for each
+  /// index up to FFT round-off (small band-limited grids go through one batched inverse FFT).
+  void grid_rows(std::span<std::complex<Real>> out);
 
   /// Number of output columns for the loaded signal.
   std::size_t columns() const;

@@ -61,6 +61,7 @@ ImpactAnalyzer::ImpactAnalyzer(const ImpactAnalyzerConfig& cfg, double fs) {
   power_.assign(rows * max_cols, 0.0);
   w_.assign(max_cols, {});
   wf_.assign(max_cols, {});
+  grid_.assign(rows * max_cols, {});
   xf_.assign(max_samples(), 0.0f);
   scratch_.assign(max_cols, 0.0);
   row_median_.assign(rows, 0.0);
@@ -138,11 +139,11 @@ ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
     cwt_->row(f, std::span<std::complex<float>>(wf_.data(), cols));
     widen();
   };
+  cwt_->grid_rows(std::span<std::complex<float>>(grid_.data(), rows * cols));
   for (std::size_t r = 0; r < rows; ++r) {
-    cwt_->row_at(r, std::span<std::complex<float>>(wf_.data(), cols));
-    widen();
+    const std::complex<float>* g = grid_.data() + r * cols;
     double* p = power_.data() + r * cols;
-    for (std::size_t c = 0; c < cols; ++c) p[c] = std::norm(w[c]);
+    for (std::size_t c = 0; c < cols; ++c) p[c] = std::norm(std::complex<double>(g[c]));
   }
   auto row_noise = [&](double f) { return noise_var * gain_at(f); };
   // Stationary content (mesh lines, hum harmonics inside the band) has the same power in every

@@ -95,6 +95,7 @@ class ImpactAnalyzer {
   std::unique_ptr<dsp::MorletCwt<float>> cwt_;
   std::vector<float> xf_;                        // the window in single precision (CWT input)
   std::vector<std::complex<float>> wf_;          // one row as computed
+  std::vector<std::complex<float>> grid_;        // the grid rows (rows x cols)
   std::vector<double> power_;                    // rows x cols |W|^2
   std::vector<std::complex<double>> w_;          // one row
   std::vector<double> scratch_;                  // median of a row
