@@ -467,22 +467,30 @@ void SpectralModeFitter::fit(std::span<const double> segment, std::span<const Mo
     const double s2 = rss / static_cast<double>(p.values() - n_par);
     result.noise_sd = std::sqrt(2.0 * s2 / p.n_samples);  // bin component variance = N sigma^2 / 2
     using Info = std::decay_t<decltype(info)>;
-    Eigen::SelfAdjointEigenSolver<Info> eig(info);
+    using Vec = Eigen::Matrix<double, Eigen::Dynamic, 1, Eigen::ColMajor, Info::MaxRowsAtCompileTime, 1>;
+    // Well-posed: the smallest eigenvalue of J^T J above 1e-12 of the largest (eigenvalues only).
+    const Eigen::SelfAdjointEigenSolver<Info> eig(info, Eigen::EigenvaluesOnly);
     const bool well_posed = eig.info() == Eigen::Success &&
                             eig.eigenvalues().minCoeff() > 1e-12 * eig.eigenvalues().maxCoeff();
+    // The needed diagonal entries of (J^T J)^-1 from an LDLT of the Jacobi-scaled matrix (unit
+    // diagonal: the factorisation loses nothing to the parameters' different units).
+    Vec d(n_par), rhs(n_par);
+    Info scaled(n_par, n_par);
+    for (int i = 0; i < n_par; ++i) d[i] = info(i, i) > 0 ? std::sqrt(info(i, i)) : 1.0;
+    for (int i = 0; i < n_par; ++i)
+      for (int k = 0; k < n_par; ++k) scaled(i, k) = info(i, k) / (d[i] * d[k]);
+    const Eigen::LDLT<Info> ldlt(scaled);
+    auto inverse_diagonal = [&](int i) {
+      rhs.setZero();
+      rhs[i] = 1.0;
+      const Vec col = ldlt.solve(rhs);
+      return col[i] / (d[i] * d[i]);
+    };
     for (int j = 0; j < p.modes; ++j) {
       double var_f = NAN, var_u = NAN;
       if (well_posed) {
-        // Diagonal of V diag(1/ev) V^T for the two nonlinear parameters of mode j.
-        var_f = var_u = 0.0;
-        for (Eigen::Index e = 0; e < eig.eigenvalues().size(); ++e) {
-          const double inv = 1.0 / eig.eigenvalues()[e];
-          const double vf = eig.eigenvectors()(kPerMode * j, e), vu = eig.eigenvectors()(kPerMode * j + 1, e);
-          var_f += vf * vf * inv;
-          var_u += vu * vu * inv;
-        }
-        var_f *= s2;
-        var_u *= s2;
+        var_f = s2 * inverse_diagonal(kPerMode * j);
+        var_u = s2 * inverse_diagonal(kPerMode * j + 1);
       }
       DampingEstimate e;
       e.method = DampingMethod::ml;
