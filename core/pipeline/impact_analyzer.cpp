@@ -269,7 +269,9 @@ ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
   row.noise_power = row_noise(f_d);
   cwt_row(f_d);
   ew = dsp::choose_window(row, env);
-  dsp::DampingEstimate two = dsp::estimate_two_point(row, ew, f_d);
+  // The two-point estimate (Eq. 17-19) only when it is the selected method: nothing else uses it.
+  dsp::DampingEstimate two;
+  if (method_ == dsp::DampingMethod::two_point) two = dsp::estimate_two_point(row, ew, f_d);
   dsp::DampingEstimate rls = dsp::estimate_ridge_ls(row, ew, f_d, envelope_ws_);
   two.f_sd_hz = rls.f_sd_hz = f_sd;
   const double snr_db = rls.snr_db;
