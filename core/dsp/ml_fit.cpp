@@ -282,8 +282,8 @@ double normal_equations(const Problem& p, const SmallVec& x, SmallMat* A, SmallV
 // rss the RSS there. Returns false when max_evaluations ran out first.
 bool minimise_small(const Problem& p, SmallVec& x, int max_evaluations, SmallMat& A, double& rss) {
   const int n = p.params();
-  SmallVec g(n), d(n), step(n), trial(n);
-  SmallMat m(n, n);
+  SmallVec g(n), d(n), step(n), trial(n), g_trial(n);
+  SmallMat m(n, n), a_trial(n, n);
   rss = normal_equations(p, x, &A, &g);
   int evaluations = 1;
   double lambda = 1e-4;
@@ -310,8 +310,10 @@ bool minimise_small(const Problem& p, SmallVec& x, int max_evaluations, SmallMat
         if (step.allFinite()) x += step;
         return step.allFinite();
       }
+      // The trial point's normal equations come with its RSS: steps are nearly always accepted here
+      // (good starts, small lambda), so this saves a separate RSS-only evaluation per iteration.
       trial = x + step;
-      rss_trial = normal_equations(p, trial, nullptr, nullptr);
+      rss_trial = normal_equations(p, trial, &a_trial, &g_trial);
       if (++evaluations >= max_evaluations) return false;
       if (rss_trial < rss) break;
       lambda *= 4.0;
@@ -320,8 +322,9 @@ bool minimise_small(const Problem& p, SmallVec& x, int max_evaluations, SmallMat
     lambda = std::max(lambda / 4.0, 1e-10);
     const double reduction = rss - rss_trial;
     x = trial;
-    rss = normal_equations(p, x, &A, &g);
-    if (++evaluations >= max_evaluations) return false;
+    rss = rss_trial;
+    A = a_trial;
+    g = g_trial;
     if (reduction <= 1e-12 * rss) return true;
   }
 }
