@@ -718,11 +718,14 @@ void check_no_allocation(bool band_limited) {
   cwt.transform(x, w);
   const auto* data = w.data.data();
   std::vector<std::complex<Real>> row(cwt.columns());
+  std::vector<std::complex<Real>> grid(cwt.frequencies_hz().size() * cwt.columns());
   const long before = ridgewatch::test::allocations();
   cwt.transform(x, w);
   cwt.transform(std::span<const Real>(x).first(900), w);  // shorter signal: shrinks in place
   cwt.load(x);
   cwt.row(700.0, row);
+  cwt.row_at(0, row);
+  cwt.grid_rows(grid);
   const long after = ridgewatch::test::allocations();
   EXPECT_EQ(after - before, 0) << "allocations on the hot path";
   EXPECT_EQ(w.data.data(), data) << "Scalogram storage was reallocated";
@@ -733,6 +736,49 @@ TEST(MorletCwtRealTime, NoAllocationPerCall) {
   check_no_allocation<float>(false);
   check_no_allocation<double>(true);
   check_no_allocation<float>(true);
+}
+
+// row_at (filter gains cached at construction) gives exactly what row() computes per call, for both
+// precisions and both modes (the same gain recurrence, bit for bit).
+template <typename Real>
+void check_row_at(bool band_limited) {
+  MorletCwtConfig c;
+  c.sample_rate_hz = 25600.0;
+  c.frequencies_hz = make_frequency_grid(600.0, 1110.0, 14, GridSpacing::log);
+  c.max_samples = 1000;
+  c.band_limited = band_limited;
+  MorletCwt<Real> cwt(c);
+  std::vector<Real> x(1000);
+  for (std::size_t i = 0; i < x.size(); ++i) x[i] = static_cast<Real>(std::sin(0.21 * static_cast<double>(i)));
+  cwt.load(x);
+  std::vector<std::complex<Real>> a(cwt.columns()), b(cwt.columns());
+  for (std::size_t r = 0; r < c.frequencies_hz.size(); ++r) {
+    cwt.row(c.frequencies_hz[r], a);
+    cwt.row_at(r, b);
+    for (std::size_t k = 0; k < a.size(); ++k) ASSERT_EQ(a[k], b[k]) << "row " << r << " column " << k;
+  }
+  EXPECT_THROW(cwt.row_at(c.frequencies_hz.size(), b), std::invalid_argument);
+  // grid_rows: all rows at once (batched inverse FFT in band-limited mode), equal to row_at up to
+  // the FFT's round-off: 1e-5 (float) / 1e-13 (double) of the row's largest |W|.
+  std::vector<std::complex<Real>> all(c.frequencies_hz.size() * cwt.columns());
+  cwt.grid_rows(all);
+  const double tol = sizeof(Real) == 4 ? 1e-5 : 1e-13;
+  for (std::size_t r = 0; r < c.frequencies_hz.size(); ++r) {
+    cwt.row_at(r, b);
+    double peak = 0.0, err = 0.0;
+    for (std::size_t k = 0; k < b.size(); ++k) {
+      peak = std::max(peak, static_cast<double>(std::abs(b[k])));
+      err = std::max(err, static_cast<double>(std::abs(all[r * b.size() + k] - b[k])));
+    }
+    EXPECT_LE(err, tol * peak) << "row " << r;
+  }
+}
+
+TEST(MorletCwtApi, RowAtEqualsRowAndGridRows) {
+  check_row_at<double>(false);
+  check_row_at<float>(false);
+  check_row_at<double>(true);
+  check_row_at<float>(true);
 }
 
 // The allocation counter itself must see allocations (otherwise the test above could not fail).

@@ -16,7 +16,9 @@ double kernel_sd_s(const EnvelopeRow& row) { return row.eta0 / (kTwoPi * row.f_r
 
 // Weighted straight-line fit y = a + b t with a sandwich covariance for errors whose correlation is
 // rho(dt) = exp(-dt^2 / (4 s^2)) and whose variances are 1 / w. Points are taken every `stride`
-// columns; the correlation makes denser sampling add almost nothing.
+// columns; the correlation makes denser sampling add almost nothing. The values and square-root
+// weights are evaluated once per point into the workspace, and rho, which depends only on the lag,
+// once per lag (the pair sum below visits each point ~reach times).
 struct LineFit {
   double intercept = NAN, slope = NAN, slope_sd = NAN;
   std::size_t points = 0;
@@ -24,21 +26,30 @@ struct LineFit {
 
 template <typename ValueFn, typename WeightFn>
 LineFit weighted_line_fit(std::size_t begin, std::size_t end, std::size_t stride, double dt,
-                          double kernel_sd, ValueFn value, WeightFn weight) {
+                          double kernel_sd, ValueFn value, WeightFn weight, EnvelopeWorkspace& ws) {
   LineFit fit;
+  if (end <= begin) return fit;
+  const std::size_t count = (end - begin + stride - 1) / stride;
+  ws.value.resize(count);
+  ws.root_weight.resize(count);
+  ws.time.resize(count);
   double s0 = 0, s1 = 0, s2 = 0, sy = 0, sty = 0;
   const double t_ref = static_cast<double>(begin) * dt;  // centre times for conditioning
-  for (std::size_t c = begin; c < end; c += stride) {
+  for (std::size_t i = 0; i < count; ++i) {
+    const std::size_t c = begin + i * stride;
     const double t = static_cast<double>(c) * dt - t_ref;
     const double w = weight(c);
     const double y = value(c);
+    ws.value[i] = y;
+    ws.root_weight[i] = std::sqrt(w);
+    ws.time[i] = t;
     s0 += w;
     s1 += w * t;
     s2 += w * t * t;
     sy += w * y;
     sty += w * t * y;
-    ++fit.points;
   }
+  fit.points = count;
   const double det = s0 * s2 - s1 * s1;
   if (fit.points < 3 || !(det > 0)) return fit;
   fit.slope = (s0 * sty - s1 * sy) / det;
@@ -46,22 +57,31 @@ LineFit weighted_line_fit(std::size_t begin, std::size_t end, std::size_t stride
   // Meat of the sandwich: sum_ij x_i x_j^T sqrt(w_i w_j) rho_ij, over pairs within 6 correlation
   // lengths (rho < 1e-15 beyond).
   const double corr_len = 2.0 * kernel_sd;
-  const auto reach = static_cast<std::size_t>(std::ceil(6.0 * corr_len / (dt * static_cast<double>(stride))));
+  const double lag_step = dt * static_cast<double>(stride) / corr_len;
+  const auto reach = std::min<std::size_t>(
+      count - 1, static_cast<std::size_t>(std::ceil(6.0 / lag_step)));
+  ws.correlation.resize(reach + 1);
+  for (std::size_t k = 0; k <= reach; ++k) {
+    const double d = static_cast<double>(k) * lag_step;
+    // symmetric pairs (i, j) and (j, i) count twice: x_i x_j^T + x_j x_i^T
+    ws.correlation[k] = std::exp(-d * d) * (k == 0 ? 1.0 : 2.0);
+  }
   double m00 = 0, m01 = 0, m11 = 0;
-  for (std::size_t i = begin; i < end; i += stride) {
-    const double ti = static_cast<double>(i) * dt - t_ref;
-    const double wi = std::sqrt(weight(i));
-    for (std::size_t k = 0; k <= reach; ++k) {
-      const std::size_t j = i + k * stride;
-      if (j >= end) break;
-      const double tj = static_cast<double>(j) * dt - t_ref;
-      const double d = (tj - ti) / corr_len;
-      const double r = wi * std::sqrt(weight(j)) * std::exp(-d * d) * (k == 0 ? 1.0 : 2.0);
-      // symmetric pair (i, j) and (j, i): x_i x_j^T + x_j x_i^T
-      m00 += r;
-      m01 += r * 0.5 * (ti + tj);
-      m11 += r * ti * tj;
+  const double* rw = ws.root_weight.data();
+  const double* tt = ws.time.data();
+  const double* rho = ws.correlation.data();
+  for (std::size_t i = 0; i < count; ++i) {
+    const double ti = tt[i];
+    const std::size_t kmax = std::min(reach, count - 1 - i);
+    double a0 = 0, a1 = 0;  // sum_k rw_j rho_k and sum_k rw_j rho_k t_j
+    for (std::size_t k = 0; k <= kmax; ++k) {
+      const double r = rw[i + k] * rho[k];
+      a0 += r;
+      a1 += r * tt[i + k];
     }
+    m00 += rw[i] * a0;
+    m01 += rw[i] * 0.5 * (ti * a0 + a1);
+    m11 += rw[i] * ti * a1;
   }
   // Bread (X^T W X)^-1 = [s2 -s1; -s1 s0] / det; slope variance = row 2 of bread * meat * bread col 2.
   const double b10 = -s1 / det, b11 = s0 / det;
@@ -133,6 +153,13 @@ std::string_view to_string(EstimateStatus status) {
   return "?";
 }
 
+void EnvelopeWorkspace::reserve(std::size_t columns, std::size_t reach) {
+  value.reserve(columns);
+  root_weight.reserve(columns);
+  time.reserve(columns);
+  correlation.reserve(std::min(columns, reach) + 1);
+}
+
 double estimate_row_noise_power(std::span<const std::complex<double>> w) {
   if (w.empty()) return NAN;
   std::vector<double> p(w.size());
@@ -183,29 +210,40 @@ EnvelopeWindow choose_window(const EnvelopeRow& row, const EnvelopeOptions& opti
 }
 
 double phase_slope_frequency(const EnvelopeRow& row, const EnvelopeWindow& win, double& sd_hz) {
+  EnvelopeWorkspace ws;
+  return phase_slope_frequency(row, win, sd_hz, ws);
+}
+
+double phase_slope_frequency(const EnvelopeRow& row, const EnvelopeWindow& win, double& sd_hz,
+                             EnvelopeWorkspace& ws) {
   sd_hz = NAN;
   if (win.end <= win.start + 2) return NAN;
   const std::size_t stride = 1;  // unwrapping needs every column (phase advance < pi per column)
-  // Unwrapped phase relative to the window start, accumulated column by column.
-  std::vector<double> phase(win.end - win.start);
+  // Unwrapped phase relative to the window start, accumulated column by column into ws.value as the
+  // fit asks for it (columns in increasing order, once each).
   double acc = 0.0;
-  phase[0] = 0.0;
+  std::size_t last = win.start;
   const double advance = kTwoPi * row.phase_reference_hz * row.time_step_s;  // 0 unless decimated
   const std::complex<double> derotate = std::polar(1.0, -advance);
-  for (std::size_t c = win.start + 1; c < win.end; ++c) {
-    acc += std::arg(row.w[c] * std::conj(row.w[c - 1]) * derotate) + advance;
-    phase[c - win.start] = acc;
-  }
   const double noise = win.noise_power;
   const LineFit fit = weighted_line_fit(
       win.start, win.end, stride, row.time_step_s, kernel_sd_s(row),
-      [&](std::size_t c) { return phase[c - win.start]; },
-      [&](std::size_t c) { return 2.0 * debiased_power(std::norm(row.w[c]), noise) / noise; });
+      [&](std::size_t c) {
+        for (; last < c; ++last) acc += std::arg(row.w[last + 1] * std::conj(row.w[last]) * derotate) + advance;
+        return acc;
+      },
+      [&](std::size_t c) { return 2.0 * debiased_power(std::norm(row.w[c]), noise) / noise; }, ws);
   sd_hz = fit.slope_sd / kTwoPi;
   return fit.slope / kTwoPi;
 }
 
 DampingEstimate estimate_ridge_ls(const EnvelopeRow& row, const EnvelopeWindow& win, double f_d_hz) {
+  EnvelopeWorkspace ws;
+  return estimate_ridge_ls(row, win, f_d_hz, ws);
+}
+
+DampingEstimate estimate_ridge_ls(const EnvelopeRow& row, const EnvelopeWindow& win, double f_d_hz,
+                                  EnvelopeWorkspace& ws) {
   DampingEstimate e = base_estimate(DampingMethod::ridge_ls, row, win);
   e.f_hz = f_d_hz;
   if (win.end <= win.start + 2) {
@@ -216,7 +254,7 @@ DampingEstimate estimate_ridge_ls(const EnvelopeRow& row, const EnvelopeWindow& 
   const LineFit fit = weighted_line_fit(
       win.start, win.end, fit_stride(row), row.time_step_s, kernel_sd_s(row),
       [&](std::size_t c) { return 0.5 * std::log(debiased_power(std::norm(row.w[c]), noise)); },
-      [&](std::size_t c) { return 2.0 * debiased_power(std::norm(row.w[c]), noise) / noise; });
+      [&](std::size_t c) { return 2.0 * debiased_power(std::norm(row.w[c]), noise) / noise; }, ws);
   e.points = fit.points;
   if (!std::isfinite(fit.slope)) {
     e.status = EstimateStatus::too_short;

@@ -17,6 +17,7 @@
 #include <span>
 #include <string>
 #include <string_view>
+#include <vector>
 
 #include "core/dsp/morlet_cwt.hpp"
 
@@ -103,6 +104,15 @@ struct EnvelopeWindow {
   EstimateStatus status = EstimateStatus::ok;
 };
 
+/// Scratch arrays of the line fits below. The estimators resize them to the window length (plus the
+/// correlation reach of the sandwich covariance); callers on a real-time path reserve() them once, after
+/// which the estimators allocate nothing.
+struct EnvelopeWorkspace {
+  std::vector<double> value, root_weight, time, correlation;
+  /// Reserves room for windows of up to `columns` columns and correlation reaches of up to `reach`.
+  void reserve(std::size_t columns, std::size_t reach);
+};
+
 /// Noise power of a row estimated from its lower quartile: where the row holds only noise,
 /// |W|^2 is exponential with mean P, whose 25 % quantile is P ln(4/3).
 double estimate_row_noise_power(std::span<const std::complex<double>> w);
@@ -116,6 +126,8 @@ EnvelopeWindow choose_window(const EnvelopeRow& row, const EnvelopeOptions& opti
 /// Unbiased: past the edges, arg W(t) = omega_d t + const for any row near the mode.
 /// Returns NaN when the window has fewer than 3 points. sd_hz receives the standard uncertainty.
 double phase_slope_frequency(const EnvelopeRow& row, const EnvelopeWindow& window, double& sd_hz);
+double phase_slope_frequency(const EnvelopeRow& row, const EnvelopeWindow& window, double& sd_hz,
+                             EnvelopeWorkspace& workspace);
 
 /// Eq. (17)-(19): the logarithmic decrement between the window start and the first instant m whole
 /// periods later where the envelope has fallen by about e^1.1 (the spacing that minimises the
@@ -127,5 +139,7 @@ DampingEstimate estimate_two_point(const EnvelopeRow& row, const EnvelopeWindow&
 /// the correlation of neighbouring envelope samples (the row's noise has a Gaussian autocorrelation
 /// exp(-dt^2 / (4 s^2))) with a sandwich covariance.
 DampingEstimate estimate_ridge_ls(const EnvelopeRow& row, const EnvelopeWindow& window, double f_d_hz);
+DampingEstimate estimate_ridge_ls(const EnvelopeRow& row, const EnvelopeWindow& window, double f_d_hz,
+                                  EnvelopeWorkspace& workspace);
 
 }  // namespace ridgewatch::dsp

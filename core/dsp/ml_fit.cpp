@@ -6,8 +6,10 @@
 #include <algorithm>
 #include <cmath>
 #include <complex>
+#include <cstring>
 #include <numbers>
 #include <stdexcept>
+#include <type_traits>
 #include <unsupported/Eigen/NonLinearOptimization>
 
 #include "core/dsp/fftw_planner.hpp"
@@ -19,12 +21,23 @@ namespace {
 using cd = std::complex<double>;
 constexpr double kTwoPi = 2.0 * std::numbers::pi;
 
+// Complex product and reciprocal without the C99 Annex G special cases of operator* and operator/
+// (a NaN test and possible call to __muldc3 per product, an unconditional call to __divdc3 per
+// quotient; measured: a quarter of the model's instructions). The operands here are finite and the
+// denominators are 1 - z e^{-i theta} with |z| < 1, never zero.
+inline cd mul(cd a, cd b) {
+  return {a.real() * b.real() - a.imag() * b.imag(), a.real() * b.imag() + a.imag() * b.real()};
+}
+inline cd inv(cd b) { return std::conj(b) / std::norm(b); }
+
 // Parameter layout per mode: [f_hz, ln zeta, Re C, Im C]; then residual terms [Re b, Im b] each.
 constexpr int kPerMode = 4;
 
 struct Problem {
   double fs = 0.0;
   double n_samples = 0.0;
+  // Per fit, reused across fits (reserved for every bin in the constructor, so clear() + push_back
+  // never reallocates).
   std::vector<cd> data;    // X_k for the bins used
   std::vector<cd> w;       // e^{-2 pi i k / N}
   std::vector<double> u;   // bin position in the band, scaled to [-1, 1] (residual polynomial)
@@ -38,9 +51,12 @@ struct Problem {
   struct ModeState {
     cd z, zn, dz_df, dz_du;
     cd c;
+    cd one_minus_zn, zn1, c_dz_df, c_dz_du;  // 1 - z^N, z^(N-1), C dz/df, C dz/du
   };
+  mutable std::vector<ModeState> states;  // one per mode, filled by for_each_bin
 
-  ModeState mode_state(const Eigen::VectorXd& x, int j) const {
+  template <typename V>
+  ModeState mode_state(const V& x, int j) const {
     const double f = x[kPerMode * j];
     const double zeta = std::exp(x[kPerMode * j + 1]);
     const double omega = kTwoPi * f;
@@ -55,48 +71,65 @@ struct Problem {
     m.dz_df = m.z * cd(-dsigma_df, kTwoPi) / fs;
     m.dz_du = m.z * cd(-dsigma_du, 0.0) / fs;
     m.c = cd(x[kPerMode * j + 2], x[kPerMode * j + 3]);
+    m.one_minus_zn = 1.0 - m.zn;
+    m.zn1 = std::exp((n_samples - 1.0) * exponent);
+    m.c_dz_df = m.c * m.dz_df;
+    m.c_dz_du = m.c * m.dz_du;
     return m;
+  }
+
+  // Calls sink(k, X_model_k, jrow) for every bin k; when jrow != nullptr it first receives
+  // dX_model_k / dparams (complex, params() entries).
+  //   G(z, k) = (1 - z^N) / d,  d = 1 - z w_k,  G'(z) = (-N z^(N-1) d + (1 - z^N) w_k) / d^2
+  //           = (G w_k - N z^(N-1)) / d,
+  // so each mode costs two complex reciprocals per bin.
+  template <typename V, typename Sink>
+  void for_each_bin(const V& x, cd* jrow, Sink&& sink) const {
+    states.resize(static_cast<std::size_t>(modes));
+    for (int j = 0; j < modes; ++j) states[static_cast<std::size_t>(j)] = mode_state(x, j);
+    const int lin0 = kPerMode * modes;
+    for (std::size_t k = 0; k < data.size(); ++k) {
+      cd out(0.0, 0.0);
+      const cd wk = w[k];
+      for (int j = 0; j < modes; ++j) {
+        const ModeState& m = states[static_cast<std::size_t>(j)];
+        const cd inv1 = inv(1.0 - mul(m.z, wk));
+        const cd inv2 = inv(1.0 - mul(std::conj(m.z), wk));
+        const cd g1 = mul(m.one_minus_zn, inv1);
+        const cd g2 = mul(std::conj(m.one_minus_zn), inv2);
+        out += 0.5 * (mul(m.c, g1) + mul(std::conj(m.c), g2));
+        if (!jrow) continue;
+        const cd gp1 = mul(mul(g1, wk) - n_samples * m.zn1, inv1);
+        const cd gp2 = mul(mul(g2, wk) - n_samples * std::conj(m.zn1), inv2);
+        cd* col = jrow + kPerMode * j;
+        col[0] = 0.5 * (mul(m.c_dz_df, gp1) + mul(std::conj(m.c_dz_df), gp2));
+        col[1] = 0.5 * (mul(m.c_dz_du, gp1) + mul(std::conj(m.c_dz_du), gp2));
+        col[2] = 0.5 * (g1 + g2);
+        const cd diff = g1 - g2;
+        col[3] = cd(-0.5 * diff.imag(), 0.5 * diff.real());  // i (g1 - g2) / 2
+      }
+      for (int b = 0; b < residual_terms; ++b) {
+        const double ub = basis[k * static_cast<std::size_t>(residual_terms) + static_cast<std::size_t>(b)];
+        out += cd(x[lin0 + 2 * b], x[lin0 + 2 * b + 1]) * ub;
+        if (jrow) {
+          jrow[lin0 + 2 * b] = ub;
+          jrow[lin0 + 2 * b + 1] = cd(0.0, ub);
+        }
+      }
+      sink(k, out, jrow);
+    }
   }
 
   // Model X_k and, when jac != nullptr, dX_k/dparams (complex, one column per parameter).
   void model(const Eigen::VectorXd& x, std::vector<cd>& out, Eigen::MatrixXcd* jac) const {
-    const std::size_t k_count = data.size();
-    out.assign(k_count, cd(0.0, 0.0));
-    if (jac) jac->setZero(static_cast<Eigen::Index>(k_count), params());
-    for (int j = 0; j < modes; ++j) {
-      const ModeState m = mode_state(x, j);
-      const cd zc = std::conj(m.z), znc = std::conj(m.zn);
-      for (std::size_t k = 0; k < k_count; ++k) {
-        const cd d1 = 1.0 - m.z * w[k];
-        const cd d2 = 1.0 - zc * w[k];
-        const cd g1 = (1.0 - m.zn) / d1;
-        const cd g2 = (1.0 - znc) / d2;
-        out[k] += 0.5 * (m.c * g1 + std::conj(m.c) * g2);
-        if (!jac) continue;
-        // G'(z) = (-N z^(N-1) (1 - z w) + (1 - z^N) w) / (1 - z w)^2
-        const cd gp1 = (-n_samples * m.zn / m.z * d1 + (1.0 - m.zn) * w[k]) / (d1 * d1);
-        const cd gp2 = (-n_samples * znc / zc * d2 + (1.0 - znc) * w[k]) / (d2 * d2);
-        const auto row = static_cast<Eigen::Index>(k);
-        const int col = kPerMode * j;
-        (*jac)(row, col) = 0.5 * (m.c * gp1 * m.dz_df + std::conj(m.c) * gp2 * std::conj(m.dz_df));
-        (*jac)(row, col + 1) =
-            0.5 * (m.c * gp1 * m.dz_du + std::conj(m.c) * gp2 * std::conj(m.dz_du));
-        (*jac)(row, col + 2) = 0.5 * (g1 + g2);
-        (*jac)(row, col + 3) = 0.5 * cd(0.0, 1.0) * (g1 - g2);
-      }
-    }
-    for (int b = 0; b < residual_terms; ++b) {
-      const int col = kPerMode * modes + 2 * b;
-      const cd coef(x[col], x[col + 1]);
-      for (std::size_t k = 0; k < k_count; ++k) {
-        const double ub = basis[k * static_cast<std::size_t>(residual_terms) + static_cast<std::size_t>(b)];
-        out[k] += coef * ub;
-        if (jac) {
-          (*jac)(static_cast<Eigen::Index>(k), col) = ub;
-          (*jac)(static_cast<Eigen::Index>(k), col + 1) = cd(0.0, ub);
-        }
-      }
-    }
+    out.resize(data.size());
+    std::vector<cd> jrow(jac ? static_cast<std::size_t>(params()) : 0);
+    if (jac) jac->resize(static_cast<Eigen::Index>(data.size()), params());
+    for_each_bin(x, jac ? jrow.data() : nullptr, [&](std::size_t k, cd v, const cd* jr) {
+      out[k] = v;
+      if (jr)
+        for (int c = 0; c < params(); ++c) (*jac)(static_cast<Eigen::Index>(k), c) = jr[c];
+    });
   }
 };
 
@@ -143,30 +176,157 @@ Eigen::MatrixXd real_jacobian(const Eigen::MatrixXcd& jc) {
   return j;
 }
 
-// DFT of the real x[0..n) at the single bin k, X_k = sum_n x[n] e^{-2 pi i k n / N}, with the exact
-// twiddles tw (interleaved cos, -sin of 2 pi m / N, m = 0..N-1) indexed by k n mod N (no recurrence,
-// so no rounding drift). Two interleaved accumulator pairs hide the add latency.
-cd direct_bin(const double* x, std::size_t n, const double* tw, std::size_t k) {
-  const std::size_t step = k % n;
-  std::size_t m0 = 0, m1 = step;
-  const std::size_t step2 = (2 * step) % n;
-  double re0 = 0.0, im0 = 0.0, re1 = 0.0, im1 = 0.0;
-  std::size_t i = 0;
-  for (; i + 1 < n; i += 2) {
-    re0 += x[i] * tw[2 * m0];
-    im0 += x[i] * tw[2 * m0 + 1];
-    re1 += x[i + 1] * tw[2 * m1];
-    im1 += x[i + 1] * tw[2 * m1 + 1];
-    m0 += step2;
-    if (m0 >= n) m0 -= n;
-    m1 += step2;
-    if (m1 >= n) m1 -= n;
+// DFT bins X_k = sum_n x[n] e^{-2 pi i k n / N}, k = k_lo .. k_lo + count - 1, of the real x[0..N) by a
+// polyphase Goertzel: with n = P m + j (x zero-padded to P M samples, M = ceil(N / P)),
+//   X_k = sum_j W^{k j} e^{-i t (M-1)} Y_j,   Y_j = sum_m x[P m + j] e^{i t (M-1-m)},  t = 2 pi k P / N,
+// and each Y_j is the Goertzel recursion s[m] = x[P m + j] + 2 cos(t) s[m-1] - s[m-2] read out as
+// s[M-1] - e^{-i t} s[M-2]. The P = 8 phases are independent recursions (the latency of one recursion
+// step is hidden; 3 flops per sample and bin against ~10 instructions for a direct sum with table
+// twiddles). Round-off grows like M^2 eps / sin(t) (M = 221, t ~ 0.8 at the pipeline's 1766-sample
+// segments: ~1e-11 of sum |x|; test_damping checks a fit on these bins against one on FFT bins).
+// tw holds e^{-2 pi i m / N}, interleaved.
+constexpr std::size_t kPhases = 8;
+
+// One bin's kPhases recursions in SSE2 pairs (GCC/Clang vector extension), so that the whole state
+// stays in registers: 4 independent chains per step. (An AVX2 variant, two bins in 4-wide vectors,
+// measured 4.5 us per impact slower: the analyzer runs it in short bursts, each paying the wake-up of
+// the upper vector lanes.)
+using Pair = double __attribute__((vector_size(2 * sizeof(double))));
+constexpr std::size_t kPairs = kPhases / 2;
+
+void goertzel_recursions(const double* x_padded, std::size_t m_count, double coef, double* s1_out,
+                         double* s2_out) {
+  const Pair c = {coef, coef};
+  Pair s1[kPairs], s2[kPairs];
+  for (std::size_t q = 0; q < kPairs; ++q) s1[q] = s2[q] = Pair{0.0, 0.0};
+  for (std::size_t m = 0; m < m_count; ++m) {
+    const double* xm = x_padded + kPhases * m;
+    for (std::size_t q = 0; q < kPairs; ++q) {
+      Pair xv;
+      std::memcpy(&xv, xm + 2 * q, sizeof xv);
+      const Pair s0 = (xv - s2[q]) + c * s1[q];
+      s2[q] = s1[q];
+      s1[q] = s0;
+    }
   }
-  if (i < n) {
-    re0 += x[i] * tw[2 * m0];
-    im0 += x[i] * tw[2 * m0 + 1];
+  std::memcpy(s1_out, s1, sizeof s1);
+  std::memcpy(s2_out, s2, sizeof s2);
+}
+
+void goertzel_bins(const double* x_padded, std::size_t n, const double* tw, std::size_t k_lo,
+                   std::size_t count, fftw_complex* out) {
+  const std::size_t m_count = (n + kPhases - 1) / kPhases;
+  auto twiddle = [&](std::size_t m) { return cd(tw[2 * (m % n)], tw[2 * (m % n) + 1]); };
+  double s1[kPhases], s2[kPhases];
+  for (std::size_t k = k_lo; k < k_lo + count; ++k) {
+    goertzel_recursions(x_padded, m_count, 2.0 * tw[2 * ((k * kPhases) % n)], s1, s2);
+    const cd e = twiddle(k * kPhases);
+    const cd rot = twiddle(((k * kPhases) % n) * (m_count - 1));
+    cd acc(0.0, 0.0);
+    for (std::size_t j = 0; j < kPhases; ++j) acc += (s1[j] - e * s2[j]) * twiddle(k * j);
+    acc *= rot;
+    out[k][0] = acc.real();
+    out[k][1] = acc.imag();
   }
-  return {re0 + re1, im0 + im1};
+}
+
+// Small problems (the pipeline's single mode: 6-8 parameters on ~7 bins; at most kMaxSmall
+// parameters) take a Levenberg-Marquardt on the normal equations with fixed-capacity matrices: no
+// heap allocation, and no values x params Jacobian (A = Re(J^H J) and g = Re(J^H r) are accumulated bin
+// by bin). Forming J^T J squares the condition number; the Marquardt scaling D = sqrt(diag A) (the
+// columns scaled to unit norm, as MINPACK does) keeps the scaled system's condition that of the
+// parameters' correlations, which for one mode plus a low-order residual polynomial is modest.
+constexpr int kMaxSmall = 12;
+using SmallMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::ColMajor, kMaxSmall, kMaxSmall>;
+using SmallVec = Eigen::Matrix<double, Eigen::Dynamic, 1, Eigen::ColMajor, kMaxSmall, 1>;
+
+// RSS = sum_k |X_k - model_k|^2 and, when A != nullptr, the normal equations A = Re(J^H J),
+// g = Re(J^H r) with r = X - model.
+double normal_equations(const Problem& p, const SmallVec& x, SmallMat* A, SmallVec* g) {
+  const int n = p.params();
+  cd jrow[kMaxSmall];
+  double jre[kMaxSmall], jim[kMaxSmall];
+  double acc[kMaxSmall][kMaxSmall] = {};
+  double acc_g[kMaxSmall] = {};
+  double rss = 0.0;
+  p.for_each_bin(x, A ? jrow : nullptr, [&](std::size_t k, cd v, const cd* jr) {
+    const cd r = p.data[k] - v;
+    rss += std::norm(r);
+    if (!jr) return;
+    for (int a = 0; a < n; ++a) {
+      jre[a] = jr[a].real();
+      jim[a] = jr[a].imag();
+    }
+    // Re(conj(J_a) J_b) and Re(conj(J_a) r), upper triangle.
+    for (int a = 0; a < n; ++a) {
+      acc_g[a] += jre[a] * r.real() + jim[a] * r.imag();
+      for (int b = a; b < n; ++b) acc[a][b] += jre[a] * jre[b] + jim[a] * jim[b];
+    }
+  });
+  if (A) {
+    A->resize(n, n);
+    g->resize(n);
+    for (int a = 0; a < n; ++a) {
+      (*g)[a] = acc_g[a];
+      for (int b = a; b < n; ++b) (*A)(a, b) = (*A)(b, a) = acc[a][b];
+    }
+  }
+  return rss;
+}
+
+// Minimises the RSS from x (updated in place). Stops when the next step would change every mode's
+// frequency by less than 1e-9 and its zeta by less than 1e-7 (relative; or the scaled parameters by
+// less than 1e-12 of their norm), or an accepted step reduced the RSS by less than 1e-12 of itself
+// (MINPACK's ftol; the general path uses 1e-12 for ftol and xtol), or no damping makes a step reduce
+// the RSS (the minimum to rounding). On return A holds the normal matrix at x and
+// rss the RSS there. Returns false when max_evaluations ran out first.
+bool minimise_small(const Problem& p, SmallVec& x, int max_evaluations, SmallMat& A, double& rss) {
+  const int n = p.params();
+  SmallVec g(n), d(n), step(n), trial(n), g_trial(n);
+  SmallMat m(n, n), a_trial(n, n);
+  rss = normal_equations(p, x, &A, &g);
+  int evaluations = 1;
+  double lambda = 1e-4;
+  for (;;) {
+    for (int i = 0; i < n; ++i) d[i] = A(i, i) > 0 ? std::sqrt(A(i, i)) : 1.0;
+    const double x_norm = x.cwiseProduct(d).norm();
+    double rss_trial = rss;
+    for (;;) {
+      // (D^-1 A D^-1 + lambda I) (D step) = D^-1 g
+      for (int i = 0; i < n; ++i)
+        for (int j = 0; j < n; ++j) m(i, j) = A(i, j) / (d[i] * d[j]);
+      m.diagonal().array() += lambda;
+      const Eigen::LDLT<SmallMat> ldlt(m);
+      step = ldlt.solve(g.cwiseQuotient(d)).cwiseQuotient(d);
+      // Converged: the Gauss-Newton step (lambda is tiny by now) changes f by < 1e-9 relative and
+      // zeta by < 1e-7 relative. Convergence is quadratic there, so the step is taken without
+      // another evaluation: x + step is within ~(1e-7)^2 of the minimum (A and rss stay those of x,
+      // which the covariance does not notice at this distance).
+      bool small = step.allFinite();
+      for (int j = 0; j < p.modes && small; ++j)
+        small = std::abs(step[kPerMode * j]) <= 1e-9 * std::abs(x[kPerMode * j]) &&
+                std::abs(step[kPerMode * j + 1]) <= 1e-7;
+      if (small || !(step.cwiseProduct(d).norm() > 1e-12 * x_norm)) {
+        if (step.allFinite()) x += step;
+        return step.allFinite();
+      }
+      // The trial point's normal equations come with its RSS: steps are nearly always accepted here
+      // (good starts, small lambda), so this saves a separate RSS-only evaluation per iteration.
+      trial = x + step;
+      rss_trial = normal_equations(p, trial, &a_trial, &g_trial);
+      if (++evaluations >= max_evaluations) return false;
+      if (rss_trial < rss) break;
+      lambda *= 4.0;
+      if (lambda > 1e8) return true;  // no reduction along the gradient either: at the minimum
+    }
+    lambda = std::max(lambda / 4.0, 1e-10);
+    const double reduction = rss - rss_trial;
+    x = trial;
+    rss = rss_trial;
+    A = a_trial;
+    g = g_trial;
+    if (reduction <= 1e-12 * rss) return true;
+  }
 }
 
 }  // namespace
@@ -177,7 +337,9 @@ struct SpectralModeFitter::Impl {
   double* in = nullptr;
   fftw_complex* out = nullptr;
   fftw_plan plan = nullptr;
-  std::vector<double> tw;  // e^{-2 pi i m / N}, interleaved re, im (direct DFT of a few bins)
+  std::vector<double> tw;  // e^{-2 pi i m / N}, interleaved re, im (Goertzel bins)
+  std::vector<double> padded;  // the segment, zero-padded to a multiple of kPhases (Goertzel bins)
+  Problem p;               // per-fit bins and model, storage reused
 
   ~Impl() {
     std::lock_guard<std::mutex> lock(fftw_planner_mutex());
@@ -195,25 +357,43 @@ SpectralModeFitter::SpectralModeFitter(std::size_t segment_samples, double sampl
     throw std::invalid_argument("SpectralModeFitter: sample_rate_hz must be > 0");
   impl_->n = segment_samples;
   impl_->fs = sample_rate_hz;
-  std::lock_guard<std::mutex> lock(fftw_planner_mutex());
-  impl_->in = fftw_alloc_real(segment_samples);
-  impl_->out = fftw_alloc_complex(segment_samples / 2 + 1);
-  if (!impl_->in || !impl_->out) throw std::bad_alloc();
-  impl_->plan = fftw_plan_dft_r2c_1d(static_cast<int>(segment_samples), impl_->in, impl_->out,
-                                     FFTW_ESTIMATE);
-  if (!impl_->plan) throw std::runtime_error("SpectralModeFitter: FFTW could not make a plan");
+  {
+    std::lock_guard<std::mutex> lock(fftw_planner_mutex());
+    impl_->in = fftw_alloc_real(segment_samples);
+    impl_->out = fftw_alloc_complex(segment_samples / 2 + 1);
+    if (!impl_->in || !impl_->out) throw std::bad_alloc();
+    impl_->plan = fftw_plan_dft_r2c_1d(static_cast<int>(segment_samples), impl_->in, impl_->out,
+                                       FFTW_ESTIMATE);
+    if (!impl_->plan) throw std::runtime_error("SpectralModeFitter: FFTW could not make a plan");
+  }
   impl_->tw.resize(2 * segment_samples);
   for (std::size_t m = 0; m < segment_samples; ++m) {
     const cd t = std::polar(1.0, -kTwoPi * static_cast<double>(m) / static_cast<double>(segment_samples));
     impl_->tw[2 * m] = t.real();
     impl_->tw[2 * m + 1] = t.imag();
   }
+  impl_->padded.assign((segment_samples + kPhases - 1) / kPhases * kPhases, 0.0);
+  // Room for every bin, so that fits never reallocate (real-time callers).
+  const std::size_t max_bins = segment_samples / 2 + 1;
+  Problem& p = impl_->p;
+  p.data.reserve(max_bins);
+  p.w.reserve(max_bins);
+  p.u.reserve(max_bins);
+  p.basis.reserve(4 * max_bins);
+  p.states.reserve(kMaxSmall / kPerMode);
 }
 
 SpectralModeFitter::~SpectralModeFitter() = default;
 
 MlFitResult SpectralModeFitter::fit(std::span<const double> segment,
                                     std::span<const ModeGuess> guesses, const MlFitOptions& options) {
+  MlFitResult result;
+  fit(segment, guesses, options, result);
+  return result;
+}
+
+void SpectralModeFitter::fit(std::span<const double> segment, std::span<const ModeGuess> guesses,
+                             const MlFitOptions& options, MlFitResult& result) {
   Impl& im = *impl_;
   if (segment.size() != im.n) throw std::invalid_argument("SpectralModeFitter::fit: wrong segment length");
   if (!(options.f_lo_hz > 0 && options.f_hi_hz > options.f_lo_hz && options.f_hi_hz <= im.fs / 2))
@@ -221,7 +401,10 @@ MlFitResult SpectralModeFitter::fit(std::span<const double> segment,
   if (options.residual_terms < 0 || options.residual_terms > 4)
     throw std::invalid_argument("SpectralModeFitter::fit: residual_terms must be in [0, 4]");
 
-  MlFitResult result;
+  result.modes.clear();
+  result.noise_sd = 0.0;
+  result.converged = false;
+  result.bins = 0;
   const double seg_s = static_cast<double>(im.n) / im.fs;
   auto fail_all = [&](EstimateStatus status) {
     result.modes.clear();
@@ -234,32 +417,31 @@ MlFitResult SpectralModeFitter::fit(std::span<const double> segment,
       e.window_end_s = seg_s;
       result.modes.push_back(e);
     }
-    return result;
   };
-  if (guesses.empty()) return result;
+  if (guesses.empty()) return;
 
-  Problem p;
+  Problem& p = im.p;
   p.fs = im.fs;
   p.n_samples = static_cast<double>(im.n);
   p.modes = static_cast<int>(guesses.size());
   p.residual_terms = options.residual_terms;
+  p.data.clear();
+  p.w.clear();
+  p.u.clear();
+  p.basis.clear();
   const double bin_hz = im.fs / static_cast<double>(im.n);
   const auto k_lo = static_cast<std::size_t>(std::max(1.0, std::ceil(options.f_lo_hz / bin_hz)));
   const auto k_hi = std::min(static_cast<std::size_t>(std::floor(options.f_hi_hz / bin_hz)),
                              (im.n - 1) / 2);  // exclude Nyquist (real-valued bin)
   if (k_hi <= k_lo) return fail_all(EstimateStatus::too_short);
   // Only the bins in [k_lo, k_hi] are used. A few of them (the pipeline's single mode in f_d +- 12 %:
-  // ~7 bins of a 1766-sample segment) are cheaper as direct sums than as a full FFT of an awkward
-  // length (1766 = 2 * 883; measured: 209k instructions per FFTW ESTIMATE transform vs ~25k for the
-  // direct bins); many bins (`ridgewatch modes`: thousands) go through the FFT.
+  // ~7 bins of a 1766-sample segment) are cheaper by the Goertzel recursion than by a full FFT of an
+  // awkward length (1766 = 2 * 883: 209k instructions per FFTW ESTIMATE transform); many bins
+  // (`ridgewatch modes`: thousands) go through the FFT.
   const std::size_t n_bins = k_hi - k_lo + 1;
-  const bool direct = static_cast<double>(n_bins) <= 2.0 * std::log2(static_cast<double>(im.n));
-  if (direct) {
-    for (std::size_t k = k_lo; k <= k_hi; ++k) {
-      const cd v = direct_bin(segment.data(), im.n, im.tw.data(), k);
-      im.out[k][0] = v.real();
-      im.out[k][1] = v.imag();
-    }
+  if (static_cast<double>(n_bins) <= 2.0 * std::log2(static_cast<double>(im.n))) {
+    std::copy(segment.begin(), segment.end(), im.padded.begin());
+    goertzel_bins(im.padded.data(), im.n, im.tw.data(), k_lo, n_bins, im.out);
   } else {
     std::copy(segment.begin(), segment.end(), im.in);
     fftw_execute(im.plan);
@@ -271,19 +453,110 @@ MlFitResult SpectralModeFitter::fit(std::span<const double> segment,
     p.w.push_back(std::polar(1.0, -kTwoPi * static_cast<double>(k) / p.n_samples));
     p.u.push_back((static_cast<double>(k) - k_mid) / k_half);
   }
-  p.basis.reserve(p.u.size() * static_cast<std::size_t>(p.residual_terms));
-  for (const double uk : p.u)
-    for (int b = 0; b < p.residual_terms; ++b) p.basis.push_back(std::pow(uk, b));
+  for (const double uk : p.u) {
+    double power = 1.0;
+    for (int b = 0; b < p.residual_terms; ++b, power *= uk) p.basis.push_back(power);
+  }
   result.bins = p.data.size();
   const int n_par = p.params();
   if (p.values() <= n_par + 2) return fail_all(EstimateStatus::too_short);
+  for (const ModeGuess& g : guesses)
+    if (!(g.f_hz > 0 && g.zeta > 0 && g.zeta < 1)) return fail_all(EstimateStatus::fit_failed);
+
+  // Estimates from the solution x, its RSS and the normal matrix info = J^T J there.
+  auto report = [&](const auto& x, double rss, const auto& info, bool converged) {
+    result.converged = converged;
+    // Covariance s^2 (J^T J)^-1 at the solution, s^2 = RSS / (values - params).
+    const double s2 = rss / static_cast<double>(p.values() - n_par);
+    result.noise_sd = std::sqrt(2.0 * s2 / p.n_samples);  // bin component variance = N sigma^2 / 2
+    using Info = std::decay_t<decltype(info)>;
+    using Vec = Eigen::Matrix<double, Eigen::Dynamic, 1, Eigen::ColMajor, Info::MaxRowsAtCompileTime, 1>;
+    // Well-posed: the smallest eigenvalue of J^T J above 1e-12 of the largest (eigenvalues only).
+    const Eigen::SelfAdjointEigenSolver<Info> eig(info, Eigen::EigenvaluesOnly);
+    const bool well_posed = eig.info() == Eigen::Success &&
+                            eig.eigenvalues().minCoeff() > 1e-12 * eig.eigenvalues().maxCoeff();
+    // The needed diagonal entries of (J^T J)^-1 from an LDLT of the Jacobi-scaled matrix (unit
+    // diagonal: the factorisation loses nothing to the parameters' different units).
+    Vec d(n_par), rhs(n_par);
+    Info scaled(n_par, n_par);
+    for (int i = 0; i < n_par; ++i) d[i] = info(i, i) > 0 ? std::sqrt(info(i, i)) : 1.0;
+    for (int i = 0; i < n_par; ++i)
+      for (int k = 0; k < n_par; ++k) scaled(i, k) = info(i, k) / (d[i] * d[k]);
+    const Eigen::LDLT<Info> ldlt(scaled);
+    auto inverse_diagonal = [&](int i) {
+      rhs.setZero();
+      rhs[i] = 1.0;
+      const Vec col = ldlt.solve(rhs);
+      return col[i] / (d[i] * d[i]);
+    };
+    for (int j = 0; j < p.modes; ++j) {
+      double var_f = NAN, var_u = NAN;
+      if (well_posed) {
+        var_f = s2 * inverse_diagonal(kPerMode * j);
+        var_u = s2 * inverse_diagonal(kPerMode * j + 1);
+      }
+      DampingEstimate e;
+      e.method = DampingMethod::ml;
+      e.window_start_s = 0.0;
+      e.window_end_s = seg_s;
+      e.points = p.data.size();
+      e.f_hz = x[kPerMode * j];
+      e.zeta = std::exp(x[kPerMode * j + 1]);
+      e.f_sd_hz = std::sqrt(var_f);
+      const double sd_u = std::sqrt(var_u);  // sd of ln zeta
+      e.zeta_sd = e.zeta * sd_u;
+      e.zeta_ci95_lo = e.zeta * std::exp(-1.959963984540054 * sd_u);
+      e.zeta_ci95_hi = e.zeta * std::exp(1.959963984540054 * sd_u);
+      e.amplitude = std::abs(cd(x[kPerMode * j + 2], x[kPerMode * j + 3]));
+      const bool sane = std::isfinite(e.f_hz) && std::isfinite(e.zeta) && e.zeta < 1.0 &&
+                        e.f_hz >= options.f_lo_hz && e.f_hz <= options.f_hi_hz && std::isfinite(sd_u);
+      e.status = (result.converged && well_posed && sane) ? EstimateStatus::ok : EstimateStatus::fit_failed;
+      result.modes.push_back(e);
+    }
+  };
 
   // Start: nonlinear parameters from the guesses, linear ones (amplitudes, residual terms) from
   // linear least squares at those frequencies and dampings.
+  if (n_par <= kMaxSmall) {
+    SmallVec x = SmallVec::Zero(n_par);
+    for (int j = 0; j < p.modes; ++j) {
+      x[kPerMode * j] = guesses[static_cast<std::size_t>(j)].f_hz;
+      x[kPerMode * j + 1] = std::log(guesses[static_cast<std::size_t>(j)].zeta);
+    }
+    SmallMat a(n_par, n_par);
+    SmallVec g(n_par);
+    // With the linear parameters at 0 the residual is the data, and the model is linear in them: the
+    // linear least-squares solution solves the normal equations restricted to their rows and columns.
+    normal_equations(p, x, &a, &g);
+    int lin[kMaxSmall];
+    int n_lin = 0;
+    for (int j = 0; j < p.modes; ++j) {
+      lin[n_lin++] = kPerMode * j + 2;
+      lin[n_lin++] = kPerMode * j + 3;
+    }
+    for (int b = 0; b < p.residual_terms; ++b) {
+      lin[n_lin++] = kPerMode * p.modes + 2 * b;
+      lin[n_lin++] = kPerMode * p.modes + 2 * b + 1;
+    }
+    SmallMat al(n_lin, n_lin);
+    SmallVec gl(n_lin);
+    for (int r = 0; r < n_lin; ++r) {
+      gl[r] = g[lin[r]];
+      for (int c = 0; c < n_lin; ++c) al(r, c) = a(lin[r], lin[c]);
+    }
+    const SmallVec sol = al.colPivHouseholderQr().solve(gl);
+    for (int r = 0; r < n_lin; ++r) x[lin[r]] = sol[r];
+    double rss = 0.0;
+    const bool converged = minimise_small(p, x, options.max_evaluations, a, rss);
+    report(x, rss, a, converged);
+    return;
+  }
+
+  // General problems (`ridgewatch modes`: several modes, thousands of bins): Eigen's MINPACK
+  // Levenberg-Marquardt on the full Jacobian (QR, no squared condition number).
   Eigen::VectorXd x = Eigen::VectorXd::Zero(n_par);
   for (int j = 0; j < p.modes; ++j) {
     const ModeGuess& g = guesses[static_cast<std::size_t>(j)];
-    if (!(g.f_hz > 0 && g.zeta > 0 && g.zeta < 1)) return fail_all(EstimateStatus::fit_failed);
     x[kPerMode * j] = g.f_hz;
     x[kPerMode * j + 1] = std::log(g.zeta);
   }
@@ -320,48 +593,17 @@ MlFitResult SpectralModeFitter::fit(std::span<const double> segment,
   lm.parameters.ftol = 1e-12;
   const auto status = lm.minimize(x);
   using Space = Eigen::LevenbergMarquardtSpace::Status;
-  result.converged = status != Space::ImproperInputParameters &&
-                     status != Space::TooManyFunctionEvaluation && status != Space::UserAsked;
+  const bool converged = status != Space::ImproperInputParameters &&
+                         status != Space::TooManyFunctionEvaluation && status != Space::UserAsked;
 
-  // Covariance s^2 (J^T J)^-1 at the solution, s^2 = RSS / (values - params).
   std::vector<cd> model_buf;
   Eigen::MatrixXcd jc;
   p.model(x, model_buf, &jc);
   double rss = 0.0;
   for (std::size_t k = 0; k < p.data.size(); ++k) rss += std::norm(p.data[k] - model_buf[k]);
-  const double s2 = rss / static_cast<double>(p.values() - n_par);
-  result.noise_sd = std::sqrt(2.0 * s2 / p.n_samples);  // bin component variance = N sigma^2 / 2
   const Eigen::MatrixXd jr = real_jacobian(jc);
   const Eigen::MatrixXd info = jr.transpose() * jr;
-  Eigen::SelfAdjointEigenSolver<Eigen::MatrixXd> eig(info);
-  const Eigen::VectorXd ev = eig.eigenvalues();
-  const bool well_posed = eig.info() == Eigen::Success && ev.minCoeff() > 1e-12 * ev.maxCoeff();
-  Eigen::MatrixXd cov = Eigen::MatrixXd::Constant(n_par, n_par, NAN);
-  if (well_posed)
-    cov = s2 * eig.eigenvectors() * ev.cwiseInverse().asDiagonal() * eig.eigenvectors().transpose();
-
-  for (int j = 0; j < p.modes; ++j) {
-    DampingEstimate e;
-    e.method = DampingMethod::ml;
-    e.window_start_s = 0.0;
-    e.window_end_s = seg_s;
-    e.points = p.data.size();
-    e.f_hz = x[kPerMode * j];
-    e.zeta = std::exp(x[kPerMode * j + 1]);
-    const double var_f = cov(kPerMode * j, kPerMode * j);
-    const double var_u = cov(kPerMode * j + 1, kPerMode * j + 1);
-    e.f_sd_hz = std::sqrt(var_f);
-    const double sd_u = std::sqrt(var_u);  // sd of ln zeta
-    e.zeta_sd = e.zeta * sd_u;
-    e.zeta_ci95_lo = e.zeta * std::exp(-1.959963984540054 * sd_u);
-    e.zeta_ci95_hi = e.zeta * std::exp(1.959963984540054 * sd_u);
-    e.amplitude = std::abs(cd(x[kPerMode * j + 2], x[kPerMode * j + 3]));
-    const bool sane = std::isfinite(e.f_hz) && std::isfinite(e.zeta) && e.zeta < 1.0 &&
-                      e.f_hz >= options.f_lo_hz && e.f_hz <= options.f_hi_hz && std::isfinite(sd_u);
-    e.status = (result.converged && well_posed && sane) ? EstimateStatus::ok : EstimateStatus::fit_failed;
-    result.modes.push_back(e);
-  }
-  return result;
+  report(x, rss, info, converged);
 }
 
 }  // namespace ridgewatch::dsp

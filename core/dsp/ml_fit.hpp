@@ -10,7 +10,8 @@
 // it (hum, out-of-band modes), and white noise stays white and independent across bins. A low-order
 // complex polynomial in k ("residual terms", as in modal analysis) absorbs the smooth in-band tails of
 // modes outside the band. Free parameters per mode: f_j (damped frequency), ln zeta_j, Re C_j, Im C_j.
-// Optimiser: Eigen's Levenberg-Marquardt (MINPACK port) with an analytic Jacobian.
+// Optimiser: Levenberg-Marquardt with an analytic Jacobian: for up to 12 parameters an allocation-free
+// one on the normal equations with Marquardt scaling, for larger problems Eigen's MINPACK port (QR).
 #pragma once
 
 #include <cstddef>
@@ -53,6 +54,11 @@ class SpectralModeFitter {
   /// start; window_start_s/end_s are 0 and the segment duration (callers shift them).
   MlFitResult fit(std::span<const double> segment, std::span<const ModeGuess> guesses,
                   const MlFitOptions& options);
+  /// Same, into `result` (its vector's capacity is reused). With at most 12 parameters (one mode with
+  /// up to 4 residual terms, or 3 modes without) and result.modes reserved for the guesses, a fit
+  /// allocates nothing: real-time callers (the impact analyzer) use this.
+  void fit(std::span<const double> segment, std::span<const ModeGuess> guesses, const MlFitOptions& options,
+           MlFitResult& result);
 
  private:
   struct Impl;

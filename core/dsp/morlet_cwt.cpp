@@ -31,8 +31,11 @@ struct Fftw<double> {
   static Plan plan_r2c(int n, double* in, Complex* out, unsigned flags) {
     return fftw_plan_dft_r2c_1d(n, in, out, flags);
   }
-  static Plan plan_c2c_backward(int n, Complex* inout, unsigned flags) {
-    return fftw_plan_dft_1d(n, inout, inout, FFTW_BACKWARD, flags);
+  static Plan plan_c2c_backward(int n, Complex* in, Complex* out, unsigned flags) {
+    return fftw_plan_dft_1d(n, in, out, FFTW_BACKWARD, flags);
+  }
+  static Plan plan_c2c_backward_many(int n, int howmany, Complex* in, Complex* out, unsigned flags) {
+    return fftw_plan_many_dft(1, &n, howmany, in, nullptr, 1, n, out, nullptr, 1, n, FFTW_BACKWARD, flags);
   }
   static void execute(Plan p) { fftw_execute(p); }
   static void destroy(Plan p) { fftw_destroy_plan(p); }
@@ -48,8 +51,11 @@ struct Fftw<float> {
   static Plan plan_r2c(int n, float* in, Complex* out, unsigned flags) {
     return fftwf_plan_dft_r2c_1d(n, in, out, flags);
   }
-  static Plan plan_c2c_backward(int n, Complex* inout, unsigned flags) {
-    return fftwf_plan_dft_1d(n, inout, inout, FFTW_BACKWARD, flags);
+  static Plan plan_c2c_backward(int n, Complex* in, Complex* out, unsigned flags) {
+    return fftwf_plan_dft_1d(n, in, out, FFTW_BACKWARD, flags);
+  }
+  static Plan plan_c2c_backward_many(int n, int howmany, Complex* in, Complex* out, unsigned flags) {
+    return fftwf_plan_many_dft(1, &n, howmany, in, nullptr, 1, n, out, nullptr, 1, n, FFTW_BACKWARD, flags);
   }
   static void execute(Plan p) { fftwf_execute(p); }
   static void destroy(Plan p) { fftwf_destroy_plan(p); }
@@ -119,10 +125,17 @@ struct MorletCwt<Real>::Impl {
 
   Real* time_buf = nullptr;                  // L reals
   typename F::Complex* spectrum = nullptr;   // L/2 + 1
-  typename F::Complex* work = nullptr;       // D
+  typename F::Complex* work = nullptr;       // D: one row's folded band
+  // D: its inverse transform. Out of place: FFTW's in-place plans for some lengths (80 at the rig's
+  // rates) allocate a buffer inside every execute, which breaks the real-time contract.
+  typename F::Complex* work_out = nullptr;
   Real* weights = nullptr;                   // min(D, L/2 + 1): one row's filter gains
   typename F::Plan forward = nullptr;
   typename F::Plan backward = nullptr;
+  // All configured rows at once (band-limited mode with cached gains): one batched inverse FFT.
+  typename F::Complex* grid_work = nullptr;      // rows x D
+  typename F::Complex* grid_work_out = nullptr;  // rows x D
+  typename F::Plan grid_backward = nullptr;
 
   // Lanes of the Gaussian recurrence (independent chains, so the compiler can vectorise them).
   static constexpr std::size_t kLanes = 8;
@@ -131,9 +144,13 @@ struct MorletCwt<Real>::Impl {
     std::lock_guard<std::mutex> lock(fftw_planner_mutex());
     if (forward) F::destroy(forward);
     if (backward) F::destroy(backward);
+    if (grid_backward) F::destroy(grid_backward);
+    F::free(grid_work);
+    F::free(grid_work_out);
     F::free(time_buf);
     F::free(spectrum);
     F::free(work);
+    F::free(work_out);
     F::free(weights);
   }
 
@@ -200,35 +217,98 @@ struct MorletCwt<Real>::Impl {
     }
   }
 
-  void compute_row(double f_hz, std::complex<Real>* out, std::size_t n_out) {
-    std::size_t k_lo = 0, k_hi = 0;
+  // Filter gains of row f: weights[0..count) for bins k_lo.., with the half weights on the jump of the
+  // analytic filter (DC, and Nyquist for even L): the DFT of the sampled, periodised analytic kernel
+  // takes the mid value there (Fourier series at a jump).
+  void row_weights(double f_hz, std::size_t& k_lo, std::size_t& count) {
+    std::size_t k_hi = 0;
     double a = 0.0;
     band(f_hz, k_lo, k_hi, a);
-    const std::size_t count = k_hi - k_lo + 1;
+    count = k_hi - k_lo + 1;
     if (count > short_len)
       throw std::invalid_argument("MorletCwt::row: frequency " + std::to_string(f_hz) +
                                   " Hz exceeds the band-limited grid (max " +
                                   std::to_string(band_limit()) + " Hz)");
     fill_weights(k_lo, count, a);
-    // Bins on the jump of the analytic filter (DC, and Nyquist for even L) take half weight: the DFT
-    // of the sampled, periodised analytic kernel takes the mid value there (Fourier series at a jump).
     if (k_lo == 0) weights[0] *= Real{0.5};
     if (fft_len % 2 == 0 && k_hi == fft_len / 2) weights[count - 1] *= Real{0.5};
+  }
+
+  void compute_row(double f_hz, std::complex<Real>* out, std::size_t n_out) {
+    std::size_t k_lo = 0, count = 0;
+    row_weights(f_hz, k_lo, count);
+    apply_row(k_lo, count, weights, out, n_out);
+  }
+
+  // Configured rows: their gains are made once (cache_grid) and reused by every load.
+  std::vector<Real> grid_weights;
+  std::vector<std::size_t> grid_offset, grid_k_lo, grid_count;
+  void cache_grid() {
+    const std::vector<double>& f = cfg.frequencies_hz;
+    std::size_t total = 0;
+    grid_offset.resize(f.size());
+    grid_k_lo.resize(f.size());
+    grid_count.resize(f.size());
+    for (std::size_t r = 0; r < f.size(); ++r) {
+      std::size_t k_hi = 0;
+      double a = 0.0;
+      band(f[r], grid_k_lo[r], k_hi, a);
+      grid_count[r] = k_hi - grid_k_lo[r] + 1;
+      grid_offset[r] = total;
+      total += grid_count[r];
+    }
+    if (total > (std::size_t{1} << 22)) {  // > 32 MB: compute per call instead
+      grid_offset.clear();
+      return;
+    }
+    grid_weights.resize(total);
+    for (std::size_t r = 0; r < f.size(); ++r) {
+      std::size_t k_lo = 0, count = 0;
+      row_weights(f[r], k_lo, count);
+      std::copy(weights, weights + count, grid_weights.begin() + static_cast<std::ptrdiff_t>(grid_offset[r]));
+    }
+  }
+  void compute_grid_row(std::size_t r, std::complex<Real>* out, std::size_t n_out) {
+    if (grid_offset.empty()) return compute_row(cfg.frequencies_hz[r], out, n_out);
+    apply_row(grid_k_lo[r], grid_count[r], grid_weights.data() + grid_offset[r], out, n_out);
+  }
+
+  // Folds the weighted band of a row into the D slots of `dst` (the inverse FFT's input).
+  void fold_row(std::size_t k_lo, std::size_t count, const Real* w, typename F::Complex* dst) const {
     // Bin k goes to slot k mod D: the band occupies `count` consecutive slots (mod D) starting at s0,
     // i.e. at most two contiguous runs; only the remaining slots need zeroing.
     const std::size_t s0 = k_lo % short_len;
     const std::size_t first = std::min(count, short_len - s0);
     const std::size_t second = count - first;
-    weigh(weights, spectrum + k_lo, work + s0, first);
-    weigh(weights + first, spectrum + k_lo + first, work, second);
+    weigh(w, spectrum + k_lo, dst + s0, first);
+    weigh(w + first, spectrum + k_lo + first, dst, second);
     if (s0 > second)
-      std::memset(static_cast<void*>(work + second), 0, sizeof(typename F::Complex) * (s0 - second));
+      std::memset(static_cast<void*>(dst + second), 0, sizeof(typename F::Complex) * (s0 - second));
     if (second == 0 && s0 + first < short_len)
-      std::memset(static_cast<void*>(work + s0 + first), 0,
+      std::memset(static_cast<void*>(dst + s0 + first), 0,
                   sizeof(typename F::Complex) * (short_len - s0 - first));
+  }
+
+  // All configured rows into out (rows x n_out, row-major) with one batched inverse FFT.
+  void compute_grid(std::complex<Real>* out, std::size_t n_out) {
+    const std::size_t rows = cfg.frequencies_hz.size();
+    if (!grid_backward) {
+      for (std::size_t r = 0; r < rows; ++r) compute_grid_row(r, out + r * n_out, n_out);
+      return;
+    }
+    for (std::size_t r = 0; r < rows; ++r)
+      fold_row(grid_k_lo[r], grid_count[r], grid_weights.data() + grid_offset[r], grid_work + r * short_len);
+    F::execute(grid_backward);
+    for (std::size_t r = 0; r < rows; ++r)
+      std::memcpy(static_cast<void*>(out + r * n_out), static_cast<const void*>(grid_work_out + r * short_len),
+                  sizeof(std::complex<Real>) * n_out);
+  }
+
+  void apply_row(std::size_t k_lo, std::size_t count, const Real* w, std::complex<Real>* out, std::size_t n_out) {
+    fold_row(k_lo, count, w, work);
     F::execute(backward);
     // fftw_complex and std::complex<Real> have the same layout (both are Real[2]).
-    std::memcpy(static_cast<void*>(out), static_cast<const void*>(work), sizeof(std::complex<Real>) * n_out);
+    std::memcpy(static_cast<void*>(out), static_cast<const void*>(work_out), sizeof(std::complex<Real>) * n_out);
   }
 };
 
@@ -293,12 +373,25 @@ MorletCwt<Real>::MorletCwt(MorletCwtConfig config) : impl_(std::make_unique<Impl
   im.time_buf = F::alloc_real(im.fft_len);
   im.spectrum = F::alloc_complex(im.fft_len / 2 + 1);
   im.work = F::alloc_complex(im.short_len);
+  im.work_out = F::alloc_complex(im.short_len);
   im.weights = F::alloc_real(std::min(im.short_len, im.fft_len / 2 + 1));
-  if (!im.time_buf || !im.spectrum || !im.work || !im.weights) throw std::bad_alloc();
+  if (!im.time_buf || !im.spectrum || !im.work || !im.work_out || !im.weights) throw std::bad_alloc();
   const unsigned flags = im.cfg.measure_plans ? FFTW_MEASURE : FFTW_ESTIMATE;
   im.forward = F::plan_r2c(static_cast<int>(im.fft_len), im.time_buf, im.spectrum, flags);
-  im.backward = F::plan_c2c_backward(static_cast<int>(im.short_len), im.work, flags);
+  im.backward = F::plan_c2c_backward(static_cast<int>(im.short_len), im.work, im.work_out, flags);
   if (!im.forward || !im.backward) throw std::runtime_error("MorletCwt: FFTW could not make a plan");
+  im.cache_grid();
+  // Batched plan for all configured rows, when their gains are cached and the batch is small (the
+  // impact analyzer's 14 rows of 80 slots; full transforms keep one row at a time).
+  const std::size_t n_rows = im.cfg.frequencies_hz.size();
+  if (!im.grid_offset.empty() && n_rows > 1 && n_rows * im.short_len <= (std::size_t{1} << 16)) {
+    im.grid_work = F::alloc_complex(n_rows * im.short_len);
+    im.grid_work_out = F::alloc_complex(n_rows * im.short_len);
+    if (!im.grid_work || !im.grid_work_out) throw std::bad_alloc();
+    im.grid_backward = F::plan_c2c_backward_many(static_cast<int>(im.short_len), static_cast<int>(n_rows),
+                                                 im.grid_work, im.grid_work_out, flags);
+    if (!im.grid_backward) throw std::runtime_error("MorletCwt: FFTW could not make a plan");
+  }
 }
 
 template <typename Real>
@@ -339,8 +432,25 @@ void MorletCwt<Real>::transform(std::span<const Real> signal, Scalogram<Real>& o
   out.time_step_s = time_step_s();
   out.decimation = im.dec;
   out.frequencies_hz.assign(im.cfg.frequencies_hz.begin(), im.cfg.frequencies_hz.end());
-  for (std::size_t r = 0; r < out.rows; ++r)
-    impl_->compute_row(im.cfg.frequencies_hz[r], out.data.data() + r * out.cols, out.cols);
+  for (std::size_t r = 0; r < out.rows; ++r) impl_->compute_grid_row(r, out.data.data() + r * out.cols, out.cols);
+}
+
+template <typename Real>
+void MorletCwt<Real>::row_at(std::size_t index, std::span<std::complex<Real>> out) {
+  Impl& im = *impl_;
+  if (im.n_loaded == 0) throw std::logic_error("MorletCwt::row_at called before load");
+  if (index >= im.cfg.frequencies_hz.size()) throw std::invalid_argument("MorletCwt::row_at: index out of range");
+  if (out.size() < columns()) throw std::invalid_argument("MorletCwt::row_at: output too short");
+  im.compute_grid_row(index, out.data(), columns());
+}
+
+template <typename Real>
+void MorletCwt<Real>::grid_rows(std::span<std::complex<Real>> out) {
+  Impl& im = *impl_;
+  if (im.n_loaded == 0) throw std::logic_error("MorletCwt::grid_rows called before load");
+  if (out.size() < im.cfg.frequencies_hz.size() * columns())
+    throw std::invalid_argument("MorletCwt::grid_rows: output too short");
+  im.compute_grid(out.data(), columns());
 }
 
 template <typename Real>

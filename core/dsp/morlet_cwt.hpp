@@ -117,6 +117,12 @@ class MorletCwt {
   /// One row at any frequency 0 < f_hz < fs/2 (band-limited mode: the row's band must fit the decimated
   /// grid, i.e. f_hz <= band_limit_hz()). Writes columns(); requires a prior load().
   void row(double f_hz, std::span<std::complex<Real>> out);
+  /// The row of configured frequency frequencies_hz()[index], identical to row(frequencies_hz()[index])
+  /// but with the filter gains made once in the constructor (the same for every load).
+  void row_at(std::size_t index, std::span<std::complex<Real>> out);
+  /// All configured rows, row-major (frequencies_hz().size() x columns()), equal to row_at for each
+  /// index up to FFT round-off (small band-limited grids go through one batched inverse FFT).
+  void grid_rows(std::span<std::complex<Real>> out);
 
   /// Number of output columns for the loaded signal.
   std::size_t columns() const;

@@ -11,6 +11,7 @@
 #include <algorithm>
 #include <array>
 #include <bit>
+#include <limits>
 #include <cmath>
 #include <sstream>
 #include <stdexcept>
@@ -116,6 +117,9 @@ struct StreamProcessor::Impl {
   std::size_t n_head = 0, n_count = 0;
 
   std::uint64_t samples = 0, impacts = 0, gaps = 0;
+  // First sample index at which front_ready() can turn true (recomputed whenever the pending queue
+  // changes), so that the per-sample loop compares one number instead of evaluating front_ready().
+  std::uint64_t ready_at = std::numeric_limits<std::uint64_t>::max();
 
   explicit Impl(const PipelineConfig& c)
       : cfg((validate(c), c)),
@@ -174,6 +178,17 @@ struct StreamProcessor::Impl {
     return next >= end + wait_after;
   }
 
+  // Analyses every final window, then recomputes ready_at.
+  void analyze_ready(std::vector<ImpactEvent>& events) {
+    while (front_ready()) analyze_front(events);
+    if (p_count == 0) {
+      ready_at = std::numeric_limits<std::uint64_t>::max();
+    } else {
+      const std::uint64_t end = pending_at(0).onset + analyzer.window_samples();
+      ready_at = (p_count > 1 && pending_at(1).onset < end + cut_guard) ? 0 : end + wait_after;
+    }
+  }
+
   void analyze_front(std::vector<ImpactEvent>& events) {
     const Pending p = pending_at(0);
     p_head = (p_head + 1) % kMaxPending;
@@ -209,6 +224,7 @@ struct StreamProcessor::Impl {
     detector.finish();
     take_onsets(events);
     while (p_count > 0) analyze_front(events);
+    ready_at = std::numeric_limits<std::uint64_t>::max();
   }
 
   void start_segment(std::uint64_t first) {
@@ -236,12 +252,27 @@ void StreamProcessor::process(std::span<const float> block, std::uint64_t first_
     ++im.gaps;
     im.start_segment(first_index);
   }
-  for (const float x : block) {
-    im.raw[im.next & im.mask] = x;
-    im.detector.push(x);
-    ++im.next;
-    if (im.detector.has_onset()) im.take_onsets(events);
-    while (im.front_ready()) im.analyze_front(events);
+  // Samples enter the raw ring a chunk ahead of the detector (bulk copies); a chunk is at most half
+  // the ring, which holds twice the history any pending window needs, so nothing still needed is
+  // overwritten. Events are the same for any block size (tested).
+  const std::size_t chunk_max = std::min<std::size_t>(1024, im.raw.size() / 2);
+  for (std::size_t begin = 0; begin < block.size(); begin += chunk_max) {
+    const std::size_t len = std::min(chunk_max, block.size() - begin);
+    const std::size_t slot = static_cast<std::size_t>(im.next & im.mask);
+    const std::size_t first = std::min(len, im.raw.size() - slot);
+    std::copy(block.begin() + static_cast<std::ptrdiff_t>(begin),
+              block.begin() + static_cast<std::ptrdiff_t>(begin + first), im.raw.begin() + static_cast<std::ptrdiff_t>(slot));
+    std::copy(block.begin() + static_cast<std::ptrdiff_t>(begin + first),
+              block.begin() + static_cast<std::ptrdiff_t>(begin + len), im.raw.begin());
+    for (std::size_t i = begin; i < begin + len; ++i) {
+      im.detector.push(block[i]);
+      ++im.next;
+      if (im.detector.has_onset()) {
+        im.take_onsets(events);
+        im.ready_at = 0;  // re-evaluate the queue below
+      }
+      if (im.next >= im.ready_at) im.analyze_ready(events);
+    }
   }
   im.samples += block.size();
 }

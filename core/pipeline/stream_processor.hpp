@@ -3,11 +3,12 @@
 // pre-trigger -> band CWT, ridge near the expected natural frequency, damping estimate -> status ->
 // trend/alarm state. Pure computation: no I/O, threads or clock; sample indices are the clock.
 //
-// Real-time contract: buffers and FFT plans are made in the constructor. The per-sample path (spike
-// test, trigger band, STA/LTA, onset) and the per-impact CWT do not allocate; process() appends to the
-// caller's event vector (reserve it). Known exception: the foundation's per-impact estimators allocate
-// small work arrays (phase_slope_frequency's phase buffer, SpectralModeFitter's Levenberg-Marquardt
-// and Eigen temporaries), a few kB per impact, i.e. ~25 times a second; nothing is planned there.
+// Real-time contract: buffers and FFT plans are made in the constructor. After that, process() and
+// flush() allocate nothing (operator new or malloc), per sample or per impact: the per-sample path
+// (spike test, trigger band, STA/LTA, onset), the per-impact CWT, ridge, envelope estimators (their
+// scratch is reserved, dsp::EnvelopeWorkspace) and ML fit (fixed-capacity matrices), and the trend
+// monitor. Events are appended to the caller's vector (reserve it). Tested with allocation counters in
+// tests/test_stream_processor.cpp (ProcessAllocatesNothingAfterWarmUp).
 //
 // Design and numbers: core/pipeline/impact_detector.hpp (detection, onset) and impact_analyzer.hpp
 // (CWT, ridge, estimators, status). Event latency: an impact is analysed once its window
