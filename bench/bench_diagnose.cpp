@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <ctime>
 #include <string>
 #include <vector>
 
@@ -61,10 +62,73 @@ std::vector<double> record(const rm::RigParameters& rig, std::vector<rm::EffectS
   return {r.output.begin() + static_cast<std::ptrdiff_t>(0.1 * rate), r.output.end()};
 }
 
-int sweep(int seeds) {
+double cpu_seconds() { return static_cast<double>(std::clock()) / CLOCKS_PER_SEC; }
+
+void print_steps(const rd::DiagnoseResult& res) {
+  for (const auto& st : res.steps) {
+    std::printf("  round %d %-26s %8.3g -> %8.3g need %.3g  impacts %.2f  dBIC %9.1f  %s%s %s\n", st.round,
+                st.effect.c_str(), st.excess_before, st.excess_after, st.required_gain, st.fraction_improved,
+                st.delta_bic, st.passed ? "PASS" : "fail", st.accepted ? " ACCEPTED" : "", st.plausibility.c_str());
+    for (const auto& p : st.parameters)
+      std::printf("      %s = %.4g (sd %.2g)%s\n", p.name.c_str(), p.value, p.sd, p.at_bound ? " at bound" : "");
+  }
+}
+
+int one(const std::string& name, double noise, int seed) {
+  for (const auto& c : cases()) {
+    if (c.name != name) continue;
+    const auto rig = rig_for(c);
+    const auto y = record(rig, c.hidden, noise, 0.64, static_cast<std::uint64_t>(seed) * 7919, 25600.0);
+    const auto seg = rd::segment_recording(y, 25600.0, rig);
+    const double t0 = cpu_seconds();
+    const rd::ModelFitter fitter(y, seg, rig);
+    const auto res = rd::diagnose(fitter, {});
+    std::printf("%s noise %.3f seed %d: %zu impacts, baseline %.3g, final %.3g, cpu %.1f s\n", name.c_str(), noise, seed,
+                seg.windows.size(), res.baseline_excess, res.final_excess, cpu_seconds() - t0);
+    print_steps(res);
+    return 0;
+  }
+  std::fprintf(stderr, "unknown case %s\n", name.c_str());
+  return 2;
+}
+
+// One fit of a model (effects by name) from given starting values, cold (no warm start).
+int fit_one(const std::string& name, double noise, int seed, const std::vector<std::string>& args) {
+  for (const auto& c : cases()) {
+    if (c.name != name) continue;
+    const auto rig = rig_for(c);
+    const auto y = record(rig, c.hidden, noise, 0.64, static_cast<std::uint64_t>(seed) * 7919, 25600.0);
+    auto seg = rd::segment_recording(y, 25600.0, rig);
+    double lo = 1e9, hi = 0.0;
+    for (auto& w : seg.windows) {
+      lo = std::min(lo, w.mesh_hz);
+      hi = std::max(hi, w.mesh_hz);
+      if (std::getenv("RW_EXACT_FZ") != nullptr) w.mesh_hz = rig.mesh_frequency_hz();
+    }
+    std::printf("mesh_hz %.4f .. %.4f (true %.4f)\n", lo, hi, rig.mesh_frequency_hz());
+    const rd::ModelFitter fitter(y, seg, rig);
+    std::vector<std::string> effects;
+    std::vector<std::pair<std::string, double>> starts;
+    for (const auto& a : args) {
+      const auto eq = a.find('=');
+      if (eq == std::string::npos) effects.push_back(a);
+      else starts.push_back({a.substr(0, eq), std::atof(a.c_str() + eq + 1)});
+    }
+    const double t0 = cpu_seconds();
+    const auto f = fitter.fit(effects, nullptr, starts);
+    std::printf("excess %.4g train chi2/n %.4g bic %.1f converged %d cpu %.2f s\n", f.heldout_excess, f.train_chi2 / f.train_n,
+                f.bic, f.converged ? 1 : 0, cpu_seconds() - t0);
+    for (const auto& e : f.estimates) std::printf("  %s = %.5g (sd %.2g)\n", e.name.c_str(), e.value, e.sd);
+    return 0;
+  }
+  return 2;
+}
+
+int sweep(int seeds, const std::string& only) {
   std::printf("| hidden | noise | seed | baseline excess | accepted | final excess | ok | s |\n|---|---|---|---|---|---|---|---|\n");
   int ok_all = 0, n_all = 0, control_fa = 0, control_n = 0;
   for (const auto& c : cases()) {
+    if (!only.empty() && c.name != only) continue;
     const int n_seeds = c.name == "control" ? std::max(seeds, 10) : seeds;
     for (double noise : {0.005, 0.03}) {
       for (int seed = 1; seed <= n_seeds; ++seed) {
@@ -145,6 +209,8 @@ int timing() {
 
 int main(int argc, char** argv) {
   const std::string mode = argc > 1 ? argv[1] : "time";
-  if (mode == "sweep") return sweep(argc > 2 ? std::atoi(argv[2]) : 2);
+  if (mode == "sweep") return sweep(argc > 2 ? std::atoi(argv[2]) : 3, argc > 3 ? argv[3] : "");
+  if (mode == "fit" && argc > 4) return fit_one(argv[2], std::atof(argv[3]), std::atoi(argv[4]), {argv + 5, argv + argc});
+  if (mode == "one" && argc > 4) return one(argv[2], std::atof(argv[3]), std::atoi(argv[4]));
   return timing();
 }

@@ -6,6 +6,8 @@
 #include <numbers>
 #include <stdexcept>
 
+#include <Eigen/Dense>
+
 #include "core/model/effect_registry.hpp"
 
 namespace ridgewatch::diagnosis {
@@ -138,18 +140,53 @@ double WindowSimulator::damping_ratio_at(double t_abs_s) const {
 }
 
 WindowSimulator::Steady WindowSimulator::steady_state(double mesh_hz) const {
-  // Linear steady state of m ẍ + d ẋ + c0 x = -(c0 e + d ė + Δc q_s): per mesh order k the forcing
-  // phasor F_k = -(c0 E_k + d Ω G_k + q_s C_k) (G_k: phasor of de/dθ, ė = Ω de/dθ) over the
-  // receptance c0 - m (kΩ)² + i d kΩ. The parametric term Δc x is second order and left to the
-  // integration.
-  Steady s{};
+  // Periodic steady state of the linear mesh equation with periodic stiffness (Eq. A1 about q_s, B1):
+  //   m ẍ + d ẋ + (c0 + Δc(θ)) x = -(c0 + Δc) e - d ė - q_s Δc,   θ = Ω t + φ_z,
+  // by harmonic balance over mesh orders -K..K (K = kSteadyOrders): with complex Fourier coefficients
+  // X_n, C_j (of Δc), E_n (of e), G_n (of de/dθ, ė = Ω de/dθ),
+  //   (c0 - m (nΩ)² + i d nΩ) X_n + Σ_j C_j X_{n-j} = -(c0 E_n + d Ω G_n + q_s C_n + Σ_j C_j E_{n-j}).
+  // The parametric coupling Σ_j C_j X_{n-j} matters: with the rig's Eq. B1 terms scaled by 1.5, Δc/c0
+  // reaches 6 % and the mesh-forced response is as large as an impact's, so leaving the coupling out
+  // (first order only) starts every window 5-10 σ (at 0.5 % noise) off the true steady state.
+  // Truncation: the response at order n is attenuated by c0 / (m (nΩ)²) above resonance, and the
+  // coupling is of relative size |C|/c0 ≤ 0.06 per order, so orders beyond 8 are below 1e-6 of x_ss.
+  constexpr int K = kSteadyOrders;
+  constexpr int N = 2 * K + 1;
   const double omega = kTwoPi * mesh_hz;
   const double d = physics_.zeta * crit_;
-  for (int k = 0; k < 4; ++k) {
-    const double kw = (k + 1) * omega;
-    const cd force = -(physics_.c0_n_per_m * e_ph_[k] + d * omega * de_ph_[k] + q_s_ * dc_ph_[k]);
-    s.x[k] = force / cd(physics_.c0_n_per_m - m_red_ * kw * kw, d * kw);
+  const double c0 = physics_.c0_n_per_m;
+  // Complex Fourier coefficients for orders -4..4 (index n + 4) from the real-amplitude phasors.
+  cd C[9], E[9], G[9];
+  for (int n = 0; n < 9; ++n) C[n] = E[n] = G[n] = 0.0;
+  for (int k = 1; k <= 4; ++k) {
+    C[4 + k] = 0.5 * dc_ph_[k - 1];
+    C[4 - k] = std::conj(C[4 + k]);
+    E[4 + k] = 0.5 * e_ph_[k - 1];
+    E[4 - k] = std::conj(E[4 + k]);
+    G[4 + k] = 0.5 * de_ph_[k - 1];
+    G[4 - k] = std::conj(G[4 + k]);
   }
+  auto coef = [](const cd* a, int n) { return (n < -4 || n > 4) ? cd(0.0) : a[n + 4]; };
+  Eigen::MatrixXcd A = Eigen::MatrixXcd::Zero(N, N);
+  Eigen::VectorXcd f = Eigen::VectorXcd::Zero(N);
+  for (int n = -K; n <= K; ++n) {
+    const int r = n + K;
+    const double nw = n * omega;
+    A(r, r) = cd(c0 - m_red_ * nw * nw, d * nw);
+    cd rhs = -(c0 * coef(E, n) + d * omega * coef(G, n) + q_s_ * coef(C, n));
+    for (int j = -4; j <= 4; ++j) {
+      if (j == 0) continue;
+      const cd cj = coef(C, j);
+      if (cj == cd(0.0)) continue;
+      rhs -= cj * coef(E, n - j);
+      if (n - j >= -K && n - j <= K) A(r, n - j + K) += cj;
+    }
+    f(r) = rhs;
+  }
+  const Eigen::VectorXcd X = A.partialPivLu().solve(f);
+  Steady s{};
+  s.x0 = std::real(X(K));
+  for (int k = 1; k <= K; ++k) s.x[k - 1] = 2.0 * X(K + k);  // x = X_0 + Re Σ 2 X_k e^{ikθ}
   return s;
 }
 
@@ -183,7 +220,8 @@ void WindowSimulator::simulate(std::uint64_t first, std::size_t n, const Impact&
     x = v = 0.0;
     if (!mesh_forcing_) return;
     const double th = physics_.mesh_phase_rad + omega * (t - imp.onset_s);
-    for (int k = 0; k < 4; ++k) {
+    x = ss.x0;
+    for (int k = 0; k < kSteadyOrders; ++k) {
       const cd ph = std::polar(1.0, (k + 1) * th);
       x += std::real(ss.x[k] * ph);
       v += std::real(cd(0.0, (k + 1) * omega) * ss.x[k] * ph);

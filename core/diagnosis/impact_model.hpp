@@ -103,8 +103,10 @@ class WindowSimulator {
   double damping_ratio_at(double t_abs_s) const;
 
  private:
+  static constexpr int kSteadyOrders = 8;
   struct Steady {
-    std::complex<double> x[4];  ///< phasors of x_ss for mesh orders 1..4
+    double x0 = 0.0;                            ///< mean of x_ss
+    std::complex<double> x[kSteadyOrders];      ///< phasors of x_ss for mesh orders 1..kSteadyOrders
   };
   Steady steady_state(double mesh_hz) const;
 

@@ -73,7 +73,17 @@ ModelState ModelFitter::carry(const WindowSimulator& sim, std::size_t w, const C
     // Dry friction: the leftover motion stops somewhere in the gap and the mesh stays stuck at an
     // offset within the friction band, which shapes the next response (up to F_c/c0 ω of velocity,
     // a few % of the peak). The closed-form decay cannot say where it stops: integrate the gap.
-    if (e.stopped) return e.transient;  // stuck at an offset: it stays there until the impact
+    if (e.stopped) {
+      // Stuck at an offset: the mesh stays there until the impact, but an auxiliary mode (second_mode)
+      // keeps ringing down through the gap (it is not held by the friction).
+      const double t_end = static_cast<double>(pw.end - 1) / fs;
+      const double t_begin = static_cast<double>(seg_.windows[w].begin) / fs;
+      ModelState s = e.transient;
+      const ModelState decayed = sim.propagate(s, t_begin - t_end, t_end);
+      s.p = decayed.p;
+      s.pd = decayed.pd;
+      return s;
+    }
     const std::uint64_t first = pw.end - 1;
     const std::size_t n = static_cast<std::size_t>(seg_.windows[w].begin - first) + 1;
     std::vector<double> scratch(n);
