@@ -23,6 +23,9 @@ struct Case {
   std::string name;
   std::vector<rm::EffectSpec> hidden;
   bool light_load = false;
+  /// Record length; diagnose always sees at most 16 impacts (runs of 4 spread over the record, as the
+  /// CLI's default --max-impacts).
+  double duration_s = 0.64;
 };
 
 std::vector<Case> cases() {
@@ -35,7 +38,10 @@ std::vector<Case> cases() {
       {"second_mode", {{"second_mode", {{"frequency_hz", 1300.0}, {"damping_ratio", 0.015}, {"participation", 0.3}}}}},
       {"contact_loss", {{"contact_loss", {{"loss_fraction", 1.0}}}}, true},
       {"stiffness_nonlinearity", {{"stiffness_nonlinearity", {{"kappa", 0.5}, {"reference_deflection_m", 2e-6}}}}},
-      {"damping_drift", {{"damping_drift", {{"rate_per_s", 0.01}}}}},
+      // A drift shows only through the change of ζ over the span of the impacts: 0.01/s over 0.64 s
+      // (Δζ = 0.0064, 27 % of ζ) leaves a held-out excess of 0.04 at 3 % noise, below the gain gate's
+      // resolution (3 sqrt(2/n) = 0.066 for 8 held-out impacts); over 2 s (Δζ = 0.02) it is clear.
+      {"damping_drift", {{"damping_drift", {{"rate_per_s", 0.01}}}}, false, 2.0},
       {"friction+second_mode",
        {{"coulomb_friction", {{"force_n", 30.0}}},
         {"second_mode", {{"frequency_hz", 1300.0}, {"damping_ratio", 0.015}, {"participation", 0.3}}}}},
@@ -78,8 +84,8 @@ int one(const std::string& name, double noise, int seed) {
   for (const auto& c : cases()) {
     if (c.name != name) continue;
     const auto rig = rig_for(c);
-    const auto y = record(rig, c.hidden, noise, 0.64, static_cast<std::uint64_t>(seed) * 7919, 25600.0);
-    const auto seg = rd::segment_recording(y, 25600.0, rig);
+    const auto y = record(rig, c.hidden, noise, c.duration_s, static_cast<std::uint64_t>(seed) * 7919, 25600.0);
+    const auto seg = rd::subset_windows(rd::segment_recording(y, 25600.0, rig), 16);
     const double t0 = cpu_seconds();
     const rd::ModelFitter fitter(y, seg, rig);
     const auto res = rd::diagnose(fitter, {});
@@ -97,8 +103,8 @@ int fit_one(const std::string& name, double noise, int seed, const std::vector<s
   for (const auto& c : cases()) {
     if (c.name != name) continue;
     const auto rig = rig_for(c);
-    const auto y = record(rig, c.hidden, noise, 0.64, static_cast<std::uint64_t>(seed) * 7919, 25600.0);
-    auto seg = rd::segment_recording(y, 25600.0, rig);
+    const auto y = record(rig, c.hidden, noise, c.duration_s, static_cast<std::uint64_t>(seed) * 7919, 25600.0);
+    auto seg = rd::subset_windows(rd::segment_recording(y, 25600.0, rig), 16);
     double lo = 1e9, hi = 0.0;
     for (auto& w : seg.windows) {
       lo = std::min(lo, w.mesh_hz);
@@ -134,8 +140,8 @@ int sweep(int seeds, const std::string& only) {
       for (int seed = 1; seed <= n_seeds; ++seed) {
         const auto rig = rig_for(c);
         const auto t0 = std::chrono::steady_clock::now();
-        const auto y = record(rig, c.hidden, noise, 0.64, static_cast<std::uint64_t>(seed) * 7919, 25600.0);
-        const auto seg = rd::segment_recording(y, 25600.0, rig);
+        const auto y = record(rig, c.hidden, noise, c.duration_s, static_cast<std::uint64_t>(seed) * 7919, 25600.0);
+        const auto seg = rd::subset_windows(rd::segment_recording(y, 25600.0, rig), 16);
         const rd::ModelFitter fitter(y, seg, rig);
         const auto res = rd::diagnose(fitter, {});
         const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
