@@ -140,7 +140,9 @@ int sweep(int seeds, const std::string& only) {
       for (int seed = 1; seed <= n_seeds; ++seed) {
         const auto rig = rig_for(c);
         const auto t0 = std::chrono::steady_clock::now();
-        const auto y = record(rig, c.hidden, noise, c.duration_s, static_cast<std::uint64_t>(seed) * 7919, 25600.0);
+        // Distinct seeds at the two noise levels (20 different records for the controls).
+        const std::uint64_t seed_value = static_cast<std::uint64_t>(seed + (noise > 0.01 ? 1000 : 0)) * 7919;
+        const auto y = record(rig, c.hidden, noise, c.duration_s, seed_value, 25600.0);
         const auto seg = rd::subset_windows(rd::segment_recording(y, 25600.0, rig), 16);
         const rd::ModelFitter fitter(y, seg, rig);
         const auto res = rd::diagnose(fitter, {});

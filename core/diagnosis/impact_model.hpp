@@ -109,6 +109,8 @@ class WindowSimulator {
     std::complex<double> x[kSteadyOrders];      ///< phasors of x_ss for mesh orders 1..kSteadyOrders
   };
   Steady steady_state(double mesh_hz) const;
+  /// Δc(θ), e(θ), de/dθ summed over the effects (phasors when exact, else the effects' hooks).
+  void mesh_terms(double th, double& dc, double& e, double& de) const;
 
   model::RigParameters rig_;
   PhysicsValues physics_;
@@ -121,6 +123,7 @@ class WindowSimulator {
   bool has_aux_ = false;
   double aux_w2_ = 0.0, aux_2zw_ = 0.0, aux_part_ = 0.0, aux_w_ = 0.0, aux_zeta_ = 0.0;
   bool mesh_forcing_ = false;
+  bool phasors_exact_ = false;
   std::complex<double> e_ph_[4], de_ph_[4], dc_ph_[4];  // phasors of e(θ), de/dθ, Δc(θ)
 };
 

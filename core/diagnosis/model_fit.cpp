@@ -299,8 +299,8 @@ bool run_lm(FitProblem& prob, FitParams& p, int max_fev) {
   lm.parameters.maxfev = max_fev;
   // Relative tolerances of 1e-8 on the parameters and on the sum of squares: far below the
   // statistical uncertainty (a held-out χ² changes by < 1e-6 of its value).
-  lm.parameters.xtol = 1e-8;
-  lm.parameters.ftol = 1e-8;
+  lm.parameters.xtol = 1e-6;
+  lm.parameters.ftol = 1e-6;
   const auto status = lm.minimize(x);
   p = prob.unpack(x);
   return status == Eigen::LevenbergMarquardtSpace::RelativeReductionTooSmall ||
