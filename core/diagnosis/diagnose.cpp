@@ -147,10 +147,13 @@ double second_mode_start(const ResidualReport& rep, double f0, double zeta) {
 /// within its basin. Returns NaN when fewer than 3 bins are populated.
 /// `f_small` receives the intercept a: the small-amplitude (damped) frequency, which also starts c0 (the
 /// linear fit's c0 is pulled up by the stiffened large cycles).
-double duffing_start(const Backbone& b, const model::RigParameters& rig, double x_ref, double& f_small) {
+/// Only bins above `min_amplitude` (sensor units) are used: a zero-crossing period jitters by
+/// σ / (A ω), 1 % of a cycle at A = 15 σ, and the bins near the noise floor otherwise dominate the line.
+double duffing_start(const Backbone& b, const model::RigParameters& rig, double x_ref, double min_amplitude,
+                     double& f_small) {
   double n = 0.0, sx = 0.0, sy = 0.0, sxx = 0.0, sxy = 0.0;
   for (std::size_t k = 0; k < b.f_hz.size(); ++k) {
-    if (!std::isfinite(b.f_hz[k])) continue;
+    if (!std::isfinite(b.f_hz[k]) || b.amplitude_rel[k] * b.amplitude_max < min_amplitude) continue;
     const double w = 2.0 * std::numbers::pi * b.f_hz[k];
     double a = b.amplitude_rel[k] * b.amplitude_max / rig.sensor_sensitivity;
     if (rig.sensor_quantity == model::SensorQuantity::kVelocity) a /= w;
@@ -219,14 +222,21 @@ DiagnoseResult diagnose(const ModelFitter& fitter, const std::vector<std::string
         // training fit of the two is kept.
         double f_small = 0.0;
         const double kappa = duffing_start(current_rep.measured, fitter.rig(),
-                                           find_candidate(name)->fixed.at("reference_deflection_m"), f_small);
-        if (std::isfinite(kappa)) {
+                                           find_candidate(name)->fixed.at("reference_deflection_m"),
+                                           15.0 * fitter.segmentation().noise_sd, f_small);
+        std::vector<std::pair<double, double>> kappa_f;  // (κ, small-amplitude frequency) starts
+        // A backbone estimate is used when its small-amplitude frequency is within 5 % of the linear
+        // fit's f0 (else the line is dominated by noise); otherwise three starts spanning the range.
+        if (std::isfinite(kappa) && std::abs(f_small / f0 - 1.0) < 0.05) kappa_f.push_back({kappa, f_small});
+        else
+          for (double k : {0.25, 1.0, 3.0}) kappa_f.push_back({k, f0 * std::sqrt(1.0 - zeta * zeta)});
+        for (const auto& [k, fs] : kappa_f) {
           // Inside the fitted range [-0.2, 5] with a margin (a start on a bound has no gradient); c0
           // from the small-amplitude frequency (f_d = f0 sqrt(1 - ζ²), f0 ∝ sqrt(c0)); ζ nominal.
           const double f_nominal = fitter.rig().natural_frequency_hz() * std::sqrt(1.0 - zeta * zeta);
           std::vector<std::pair<std::string, double>> cold = {
-              {"stiffness_nonlinearity.kappa", std::clamp(kappa, -0.15, 4.5)},
-              {"c0_n_per_m", 2.0 * std::log(f_small / f_nominal)}};
+              {"stiffness_nonlinearity.kappa", std::clamp(k, -0.15, 4.5)},
+              {"c0_n_per_m", 2.0 * std::log(fs / f_nominal)}};
           for (const auto& e : current.estimates)
             if (e.name != "c0_n_per_m" && e.name != "zeta") cold.push_back({e.name, e.value});
           FitResult g = fitter.fit(with, nullptr, cold);
