@@ -40,6 +40,8 @@ struct CandidateOutcome {
 struct DiagnoseOptions {
   int max_rounds = 3;
   std::vector<std::string> candidates;  ///< empty: every diagnosable effect
+  /// LM restarts of an accepted model from its own optimum (until χ² improves by less than 1).
+  int polish_restarts = 2;
 };
 
 struct DiagnoseResult {
