@@ -1,7 +1,11 @@
 // Diagnose acceptance sweep and timing (issue 5). Not a Google Benchmark: prints tables.
-//   bench_diagnose sweep [seeds]   each catalogue effect hidden, two noise levels, `seeds` seeds;
-//                                  controls (no hidden effect) over >= 20 seeds: false-accept rate
-//   bench_diagnose time            10 s at 51.2 kHz, 250 impacts: diagnose on a subset of impacts
+//   bench_diagnose sweep [seeds] [case]  each catalogue effect hidden, two noise levels, `seeds` seeds
+//                                        (default 3); controls (no hidden effect) over 2 x max(seeds,
+//                                        10) distinct seeds: false-accept rate
+//   bench_diagnose time                  10 s at 51.2 kHz, 250 impacts: diagnose on subsets of 16/24/32
+//                                        impacts (wall and CPU seconds)
+//   bench_diagnose one CASE NOISE SEED   every candidate step of one sweep case (debugging)
+//   bench_diagnose fit CASE NOISE SEED [EFFECT]... [NAME=START]...   one cold fit of a model
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -186,7 +190,7 @@ int timing() {
   t0 = std::chrono::steady_clock::now();
   const auto seg_all = rd::segment_recording(y, rate, rig);
   const double t_seg = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  std::printf("| stage | impacts | seconds |\n|---|---|---|\n| simulate 10 s (test data) | %zu | %.2f |\n| segment (detector, noise, spikes) | %zu | %.2f |\n",
+  std::printf("| stage | impacts | wall s | CPU s |\n|---|---|---|---|\n| simulate 10 s (test data) | %zu | %.2f | |\n| segment (detector, noise, spikes) | %zu | %.2f | |\n",
               r.impacts.size(), t_sim, seg_all.windows.size(), t_seg);
   for (std::size_t subset : {16u, 24u, 32u}) {
     // Subset: runs of 4 consecutive impacts spread over the record (consecutive so that each carries
@@ -201,13 +205,14 @@ int timing() {
         seg.windows.push_back(w);
       }
     t0 = std::chrono::steady_clock::now();
+    const double c0 = cpu_seconds();
     const rd::ModelFitter fitter(y, seg, rig);
     const auto res = rd::diagnose(fitter, {});
     const double t = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
     std::string acc;
     for (const auto& v : res.verdict) acc += (acc.empty() ? "" : ",") + v;
-    std::printf("| diagnose on %zu of %zu impacts (verdict %s, excess %.3g -> %.3g) | %zu | %.2f |\n", subset,
-                seg_all.windows.size(), acc.c_str(), res.baseline_excess, res.final_excess, subset, t);
+    std::printf("| diagnose on %zu of %zu impacts (verdict %s, excess %.3g -> %.3g) | %zu | %.2f | %.2f |\n", subset,
+                seg_all.windows.size(), acc.c_str(), res.baseline_excess, res.final_excess, subset, t, cpu_seconds() - c0);
     std::fflush(stdout);
   }
   return 0;
