@@ -72,6 +72,11 @@ std::vector<double> record(const rm::RigParameters& rig, std::vector<rm::EffectS
   return {r.output.begin() + static_cast<std::ptrdiff_t>(0.1 * rate), r.output.end()};
 }
 
+// Distinct seeds at the two noise levels (20 different records for the controls).
+std::uint64_t seed_value(int seed, double noise) {
+  return static_cast<std::uint64_t>(seed + (noise > 0.01 ? 1000 : 0)) * 7919;
+}
+
 double cpu_seconds() { return static_cast<double>(std::clock()) / CLOCKS_PER_SEC; }
 
 void print_steps(const rd::DiagnoseResult& res) {
@@ -88,7 +93,7 @@ int one(const std::string& name, double noise, int seed) {
   for (const auto& c : cases()) {
     if (c.name != name) continue;
     const auto rig = rig_for(c);
-    const auto y = record(rig, c.hidden, noise, c.duration_s, static_cast<std::uint64_t>(seed) * 7919, 25600.0);
+    const auto y = record(rig, c.hidden, noise, c.duration_s, seed_value(seed, noise), 25600.0);
     const auto seg = rd::subset_windows(rd::segment_recording(y, 25600.0, rig), 16);
     const double t0 = cpu_seconds();
     const rd::ModelFitter fitter(y, seg, rig);
@@ -107,7 +112,7 @@ int fit_one(const std::string& name, double noise, int seed, const std::vector<s
   for (const auto& c : cases()) {
     if (c.name != name) continue;
     const auto rig = rig_for(c);
-    const auto y = record(rig, c.hidden, noise, c.duration_s, static_cast<std::uint64_t>(seed) * 7919, 25600.0);
+    const auto y = record(rig, c.hidden, noise, c.duration_s, seed_value(seed, noise), 25600.0);
     auto seg = rd::subset_windows(rd::segment_recording(y, 25600.0, rig), 16);
     double lo = 1e9, hi = 0.0;
     for (auto& w : seg.windows) {
@@ -129,6 +134,11 @@ int fit_one(const std::string& name, double noise, int seed, const std::vector<s
     std::printf("excess %.4g train chi2/n %.4g bic %.1f converged %d cpu %.2f s\n", f.heldout_excess, f.train_chi2 / f.train_n,
                 f.bic, f.converged ? 1 : 0, cpu_seconds() - t0);
     for (const auto& e : f.estimates) std::printf("  %s = %.5g (sd %.2g)\n", e.name.c_str(), e.value, e.sd);
+    std::printf("  per impact (onset s, force rel, residual power / noise):");
+    for (std::size_t w = 0; w < seg.windows.size(); ++w)
+      std::printf(" [%.3f %.2f %.2f%s]", seg.windows[w].onset_s, std::exp(f.params.ln_force[w]), f.impact_power[w],
+                  fitter.is_heldout(w) ? " h" : "");
+    std::printf("\n");
     return 0;
   }
   return 2;
@@ -144,9 +154,7 @@ int sweep(int seeds, const std::string& only) {
       for (int seed = 1; seed <= n_seeds; ++seed) {
         const auto rig = rig_for(c);
         const auto t0 = std::chrono::steady_clock::now();
-        // Distinct seeds at the two noise levels (20 different records for the controls).
-        const std::uint64_t seed_value = static_cast<std::uint64_t>(seed + (noise > 0.01 ? 1000 : 0)) * 7919;
-        const auto y = record(rig, c.hidden, noise, c.duration_s, seed_value, 25600.0);
+        const auto y = record(rig, c.hidden, noise, c.duration_s, seed_value(seed, noise), 25600.0);
         const auto seg = rd::subset_windows(rd::segment_recording(y, 25600.0, rig), 16);
         const rd::ModelFitter fitter(y, seg, rig);
         const auto res = rd::diagnose(fitter, {});

@@ -32,7 +32,7 @@ std::string implausibility(const ModelFitter& fitter, const FitResult& fit, cons
   bool significant = false;
   for (const auto& f : c->free) {
     const ParameterEstimate* e = find_estimate(fit, effect + "." + f.key);
-    if (e->at_bound) return f.key + " at the bound of its range (" + format_number(e->value) + ")";
+    if (e->at_bound && !f.bounds_attainable) return f.key + " at the bound of its range (" + format_number(e->value) + ")";
     double null_value = 0.0;
     bool has_null = false;
     for (const auto& p : d->parameters)

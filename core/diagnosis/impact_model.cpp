@@ -56,7 +56,7 @@ const std::vector<CandidateSpec>& candidate_table() {
         {"participation", Transform::kLog, 1e-4, 10.0, 0.1}},
        {},
        false},
-      {"contact_loss", {{"loss_fraction", Transform::kBounded, 0.0, 1.0, 0.5}}, {}, false},
+      {"contact_loss", {{"loss_fraction", Transform::kBounded, 0.0, 1.0, 0.5, true}}, {}, false},
       // x_ref is fixed: only κ / x_ref² is identifiable (the cubic coefficient).
       {"stiffness_nonlinearity",
        {{"kappa", Transform::kBounded, -0.2, 5.0, 0.0}},
@@ -105,10 +105,14 @@ WindowSimulator::WindowSimulator(const model::RigParameters& rig, const PhysicsV
       f_max = std::max(f_max, m->frequency_hz);
     }
   }
-  // RK4 step: ω h <= 0.15 rad at the highest modelled frequency. The harmonic-oscillator RK4 phase
-  // error is (ωh)^5/120 per step: 6e-7 rad per step, 1e-3 rad over a 30 ms window at 860 Hz, i.e. a
-  // model error of 0.1 % of the amplitude, below the 0.5 % noise floor of the quietest test case.
-  substeps_ = std::max(1, static_cast<int>(std::ceil(kTwoPi * f_max / (0.15 * fs_))));
+  // RK4 step: ω h <= 0.25 rad at the highest modelled frequency (one step per sample at 25.6 kHz up
+  // to 1 kHz). On the linear oscillator RK4's error is systematic, not noise-like: a frequency low by
+  // (ωh)^4/120 (1.6e-5 at ωh = 0.21) and an amplitude loss of (ωh)^6/144 per step (Δζ = 3e-6). Both
+  // are absorbed by the fitted c0 and ζ: c0 comes out 3e-5 high at 25.6 kHz (measured; its 95 %
+  // interval at 0.5 % noise and 8 fitted impacts is ±5e-5, the paper's gap is 6e-3) and the held-out
+  // excess is unchanged to 1e-4 (0.15 rad, two steps per sample, cost twice as much). The pulse is
+  // integrated with steps ending at its edges; its impulse error is taken up by the fitted force.
+  substeps_ = std::max(1, static_cast<int>(std::ceil(kTwoPi * f_max / (0.25 * fs_))));
 
   // Phasors of the mesh-periodic terms over one mesh cycle (orders 1..4; 32 points resolve order 4
   // of the rig's 3-term Eq. B1 and of the catalogue's 3-harmonic transmission error exactly).

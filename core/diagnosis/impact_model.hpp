@@ -44,6 +44,9 @@ struct FreeParameter {
   Transform transform = Transform::kLog;
   double lo = 0.0, hi = 0.0;  ///< within the catalogue's bounds
   double start = 0.0;         ///< value the optimiser starts from
+  /// The range's ends are values the effect physically takes (contact_loss's loss_fraction = 1:
+  /// complete tooth separation), so a fit there is not "stuck at a bound" (diagnose's plausibility).
+  bool bounds_attainable = false;
 };
 
 /// A diagnosable effect: which of its catalogue parameters are fitted and which are held fixed.
