@@ -109,6 +109,9 @@ class ModelFitter {
   void simulate_window(const WindowSimulator& sim, std::size_t w, const FitParams& p, const Chain& c,
                        std::vector<double>& out, WindowSimulator::End& end) const;
   void initialise_nuisances(FitParams& p, const std::vector<GlobalParameter>& layout) const;
+  /// Best onset shift (grid) and force (projection) of window w at the given physics and tail.
+  bool onset_grid(const WindowSimulator& sim, std::size_t w, const FitParams& p, const Chain& c, double& ln_force,
+                  double& shift) const;
 
   std::span<const double> y_;
   Segmentation seg_;
