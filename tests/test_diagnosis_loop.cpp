@@ -7,6 +7,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <ostream>
 #include <string>
 #include <vector>
 
@@ -25,6 +26,8 @@ struct LoopCase {
   std::uint64_t seed = 1;
   double duration_s = 0.64;  ///< longer records are fitted on 16 impacts spread over them (as the CLI)
 };
+// Test names and failure messages show the label, not the bytes of the struct.
+void PrintTo(const LoopCase& c, std::ostream* os) { *os << c.label; }
 
 // 25.6 kHz after a 0.1 s lead-in that is dropped (the simulator starts from rest; a recording starts
 // in steady state); 0.64 s is 16 impacts at 1500 rpm, the CLI's default number.
