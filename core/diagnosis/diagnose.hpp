@@ -9,7 +9,8 @@
 //     improves about half of them);
 //  3. training ΔBIC < -10 ("very strong" evidence on the Kass–Raftery scale);
 //  4. physically plausible fitted values: the effect's size significantly non-zero (> 2 sd from its
-//     null value) and not stuck at a bound, and effect-specific rules (a second mode off f0's own
+//     null value) and not stuck at a bound of the fit range (unless that bound is a physical value the
+//     effect takes, as complete tooth separation), and effect-specific rules (a second mode off f0's own
 //     bandwidth and off the mesh lines and sidebands, damped below 0.2; a damping drift keeping ζ > 0).
 #pragma once
 
@@ -40,6 +41,8 @@ struct CandidateOutcome {
 struct DiagnoseOptions {
   int max_rounds = 3;
   std::vector<std::string> candidates;  ///< empty: every diagnosable effect
+  /// LM restarts of an accepted model from its own optimum (until χ² improves by less than 1).
+  int polish_restarts = 2;
 };
 
 struct DiagnoseResult {

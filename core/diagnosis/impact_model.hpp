@@ -44,6 +44,9 @@ struct FreeParameter {
   Transform transform = Transform::kLog;
   double lo = 0.0, hi = 0.0;  ///< within the catalogue's bounds
   double start = 0.0;         ///< value the optimiser starts from
+  /// The range's ends are values the effect physically takes (contact_loss's loss_fraction = 1:
+  /// complete tooth separation), so a fit there is not "stuck at a bound" (diagnose's plausibility).
+  bool bounds_attainable = false;
 };
 
 /// A diagnosable effect: which of its catalogue parameters are fitted and which are held fixed.
@@ -103,10 +106,14 @@ class WindowSimulator {
   double damping_ratio_at(double t_abs_s) const;
 
  private:
+  static constexpr int kSteadyOrders = 8;
   struct Steady {
-    std::complex<double> x[4];  ///< phasors of x_ss for mesh orders 1..4
+    double x0 = 0.0;                            ///< mean of x_ss
+    std::complex<double> x[kSteadyOrders];      ///< phasors of x_ss for mesh orders 1..kSteadyOrders
   };
   Steady steady_state(double mesh_hz) const;
+  /// Δc(θ), e(θ), de/dθ summed over the effects (phasors when exact, else the effects' hooks).
+  void mesh_terms(double th, double& dc, double& e, double& de) const;
 
   model::RigParameters rig_;
   PhysicsValues physics_;
@@ -119,6 +126,7 @@ class WindowSimulator {
   bool has_aux_ = false;
   double aux_w2_ = 0.0, aux_2zw_ = 0.0, aux_part_ = 0.0, aux_w_ = 0.0, aux_zeta_ = 0.0;
   bool mesh_forcing_ = false;
+  bool phasors_exact_ = false;
   std::complex<double> e_ph_[4], de_ph_[4], dc_ph_[4];  // phasors of e(θ), de/dθ, Δc(θ)
 };
 

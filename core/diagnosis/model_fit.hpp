@@ -15,7 +15,8 @@
 // Folds: windows alternate training (even index) / held-out (odd). Training fit: globals and the
 // training nuisances on training rows (held-out nuisances stay at their initial values; they reach the
 // training rows only through the small carried tail). Held-out: globals frozen, all nuisances refitted
-// on all rows, the error reported on held-out rows only.
+// window by window in time order (each on its own rows, with its predecessor's final tail carried in),
+// the error reported on held-out rows only.
 #pragma once
 
 #include <Eigen/Dense>
@@ -102,11 +103,15 @@ class ModelFitter {
 
  private:
   friend struct FitProblem;
+  friend struct WindowProblem;
   WindowSimulator::Impact impact(std::size_t w, const FitParams& p) const;
   ModelState carry(const WindowSimulator& sim, std::size_t w, const Chain& c) const;
   void simulate_window(const WindowSimulator& sim, std::size_t w, const FitParams& p, const Chain& c,
                        std::vector<double>& out, WindowSimulator::End& end) const;
   void initialise_nuisances(FitParams& p, const std::vector<GlobalParameter>& layout) const;
+  /// Best onset shift (grid) and force (projection) of window w at the given physics and tail.
+  bool onset_grid(const WindowSimulator& sim, std::size_t w, const FitParams& p, const Chain& c, double& ln_force,
+                  double& shift) const;
 
   std::span<const double> y_;
   Segmentation seg_;

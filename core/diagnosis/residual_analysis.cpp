@@ -197,6 +197,7 @@ ResidualReport analyse_residual(const ModelFitter& fitter, const FitResult& fit)
   if (a_max > 0.0) {
     rep.measured = bin_cycles(meas, a_max * 1.0000001);
     rep.model = bin_cycles(mod, a_max * 1.0000001);
+    rep.measured.amplitude_max = rep.model.amplitude_max = a_max;
   }
   return rep;
 }

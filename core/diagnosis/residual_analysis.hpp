@@ -19,6 +19,7 @@ struct Backbone {
   std::vector<double> amplitude_rel;  ///< bin centres: cycle amplitude / largest cycle amplitude
   std::vector<double> zeta;           ///< equivalent damping ln(A_k/A_k+1)/2π per bin (NaN if empty)
   std::vector<double> f_hz;           ///< zero-crossing frequency per bin (NaN if empty)
+  double amplitude_max = 0.0;         ///< the cycle amplitude amplitude_rel = 1 stands for, sensor units
 };
 
 struct ResidualReport {
