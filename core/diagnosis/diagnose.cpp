@@ -185,6 +185,11 @@ std::vector<std::string> sensor_problems(const Segmentation& seg, double duratio
   if (!seg.dropouts.empty())
     out.push_back(std::to_string(seg.dropouts.size()) + " dropout(s), " + std::to_string(seg.dropout_samples) +
                   " samples held constant: a sensor/acquisition problem, masked before fitting");
+  if (seg.noise_at_floor)
+    out.push_back("no measurable noise between the impacts (below 1e-6 of the peak: noise-free or simulated "
+                  "data?): the excess is relative to that floor, so any model error looks huge; judge by fit %. "
+                  "Kinks (e.g. dry-friction stick-slip) and motion at rest may then be flagged as spikes and "
+                  "dropouts");
   return out;
 }
 

@@ -95,6 +95,7 @@ Segmentation segment_recording(std::span<const double> y, double fs, const model
   // otherwise give a zero floor and an infinite excess).
   const double r_sd = median(absr) / 0.6745;
   seg.noise_sd = std::max(r_sd / std::sqrt(70.0 / 36.0), 1e-6 * peak_all);
+  seg.noise_at_floor = r_sd / std::sqrt(70.0 / 36.0) < 1e-6 * peak_all;
 
   // 3. Spikes: |r| above 10 robust sd (a Gaussian sample exceeds that with p = 2e-23) and 8 times the
   //    residual 3-4 samples away (which a one-sample outlier does not touch, while any vibration

@@ -33,6 +33,7 @@ struct Segmentation {
   double sample_rate_hz = 0.0;
   std::vector<ImpactWindow> windows;
   double noise_sd = 0.0;        ///< white-equivalent noise standard deviation of the samples
+  bool noise_at_floor = false;  ///< no measurable noise: noise_sd is the 1e-6-of-peak floor
   double revolution_s = 0.0;    ///< median impact spacing
   std::vector<std::uint64_t> spikes;    ///< isolated outliers (masked)
   std::vector<std::uint64_t> dropouts;  ///< first samples of dropout runs (masked)
