@@ -248,10 +248,46 @@ constexpr int kMaxSmall = 12;
 using SmallMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::ColMajor, kMaxSmall, kMaxSmall>;
 using SmallVec = Eigen::Matrix<double, Eigen::Dynamic, 1, Eigen::ColMajor, kMaxSmall, 1>;
 
+// Solves M y = b for a symmetric positive definite M (n <= kMaxSmall, upper triangle read) by an
+// unpivoted Cholesky factorisation on fixed arrays; false when M is not numerically positive definite
+// (the caller then takes Eigen's pivoted LDLT). The LM systems here are Jacobi-scaled (unit diagonal
+// plus lambda), where Cholesky needs no pivoting; Eigen's dynamic-size LDLT and its solves were ~7 %
+// of a pipeline impact's analysis.
+bool cholesky_solve(const SmallMat& m, int n, const double* b, double* y) {
+  double l[kMaxSmall][kMaxSmall];
+  for (int j = 0; j < n; ++j) {
+    double djj = m(j, j);
+    for (int k = 0; k < j; ++k) djj -= l[j][k] * l[j][k];
+    if (!(djj > 0) || !std::isfinite(djj)) return false;
+    const double ljj = std::sqrt(djj);
+    l[j][j] = ljj;
+    const double inv = 1.0 / ljj;
+    for (int i = j + 1; i < n; ++i) {
+      double v = m(j, i);
+      for (int k = 0; k < j; ++k) v -= l[i][k] * l[j][k];
+      l[i][j] = v * inv;
+    }
+  }
+  for (int i = 0; i < n; ++i) {  // L z = b
+    double v = b[i];
+    for (int k = 0; k < i; ++k) v -= l[i][k] * y[k];
+    y[i] = v / l[i][i];
+  }
+  for (int i = n - 1; i >= 0; --i) {  // L^T y = z
+    double v = y[i];
+    for (int k = i + 1; k < n; ++k) v -= l[k][i] * y[k];
+    y[i] = v / l[i][i];
+  }
+  return true;
+}
+
 // RSS = sum_k |X_k - model_k|^2 and, when A != nullptr, the normal equations A = Re(J^H J),
 // g = Re(J^H r) with r = X - model.
-double normal_equations(const Problem& p, const SmallVec& x, SmallMat* A, SmallVec* g) {
-  const int n = p.params();
+// N > 0: the parameter count as a compile-time constant (the pipeline's 6 and 8), so that the
+// accumulation loops unroll and vectorise; N = 0: p.params() at run time. Same arithmetic either way.
+template <int N>
+double normal_equations_n(const Problem& p, const SmallVec& x, SmallMat* A, SmallVec* g) {
+  const int n = N > 0 ? N : p.params();
   cd jrow[kMaxSmall];
   double jre[kMaxSmall], jim[kMaxSmall];
   double acc[kMaxSmall][kMaxSmall] = {};
@@ -282,6 +318,14 @@ double normal_equations(const Problem& p, const SmallVec& x, SmallMat* A, SmallV
   return rss;
 }
 
+double normal_equations(const Problem& p, const SmallVec& x, SmallMat* A, SmallVec* g) {
+  switch (p.params()) {
+    case 6: return normal_equations_n<6>(p, x, A, g);
+    case 8: return normal_equations_n<8>(p, x, A, g);
+    default: return normal_equations_n<0>(p, x, A, g);
+  }
+}
+
 // Minimises the RSS from x (updated in place). Stops when the next step would change every mode's
 // frequency by less than 1e-9 and its zeta by less than 1e-7 (relative; or the scaled parameters by
 // less than 1e-12 of their norm), or an accepted step reduced the RSS by less than 1e-12 of itself
@@ -304,8 +348,14 @@ bool minimise_small(const Problem& p, SmallVec& x, int max_evaluations, SmallMat
       for (int i = 0; i < n; ++i)
         for (int j = 0; j < n; ++j) m(i, j) = A(i, j) / (d[i] * d[j]);
       m.diagonal().array() += lambda;
-      const Eigen::LDLT<SmallMat> ldlt(m);
-      step = ldlt.solve(g.cwiseQuotient(d)).cwiseQuotient(d);
+      double rhs[kMaxSmall] = {}, y[kMaxSmall] = {};
+      for (int i = 0; i < n; ++i) rhs[i] = g[i] / d[i];
+      if (cholesky_solve(m, n, rhs, y)) {
+        for (int i = 0; i < n; ++i) step[i] = y[i] / d[i];
+      } else {
+        const Eigen::LDLT<SmallMat> ldlt(m);
+        step = ldlt.solve(g.cwiseQuotient(d)).cwiseQuotient(d);
+      }
       // Converged: the Gauss-Newton step (lambda is tiny by now) changes f by < 1e-9 relative and
       // zeta by < 1e-7 relative. Convergence is quadratic there, so the step is taken without
       // another evaluation: x + step is within ~(1e-7)^2 of the minimum (A and rss stay those of x,
@@ -455,7 +505,7 @@ void SpectralModeFitter::fit(std::span<const double> segment, std::span<const Mo
   const double k_half = std::max(0.5 * static_cast<double>(k_hi - k_lo), 1.0);
   for (std::size_t k = k_lo; k <= k_hi; ++k) {
     p.data.emplace_back(im.out[k][0], im.out[k][1]);
-    p.w.push_back(std::polar(1.0, -kTwoPi * static_cast<double>(k) / p.n_samples));
+    p.w.emplace_back(im.tw[2 * k], im.tw[2 * k + 1]);  // e^{-2 pi i k / N}, the same polar() value
     p.u.push_back((static_cast<double>(k) - k_mid) / k_half);
   }
   for (const double uk : p.u) {
@@ -589,7 +639,22 @@ void SpectralModeFitter::fit(std::span<const double> segment, std::span<const Mo
       gl[r] = g[lin[r]];
       for (int c = 0; c < n_lin; ++c) al(r, c) = a(lin[r], lin[c]);
     }
-    const SmallVec sol = al.colPivHouseholderQr().solve(gl);
+    // Jacobi-scaled Cholesky (QR with column pivoting when that matrix is not positive definite).
+    SmallVec sol(n_lin);
+    {
+      double dl[kMaxSmall] = {}, rhs[kMaxSmall] = {}, y[kMaxSmall] = {};
+      SmallMat als(n_lin, n_lin);
+      for (int r = 0; r < n_lin; ++r) dl[r] = al(r, r) > 0 ? std::sqrt(al(r, r)) : 1.0;
+      for (int r = 0; r < n_lin; ++r) {
+        rhs[r] = gl[r] / dl[r];
+        for (int c = 0; c < n_lin; ++c) als(r, c) = al(r, c) / (dl[r] * dl[c]);
+      }
+      if (cholesky_solve(als, n_lin, rhs, y)) {
+        for (int r = 0; r < n_lin; ++r) sol[r] = y[r] / dl[r];
+      } else {
+        sol = al.colPivHouseholderQr().solve(gl);
+      }
+    }
     for (int r = 0; r < n_lin; ++r) x[lin[r]] = sol[r];
     double rss = 0.0;
     const bool converged = minimise_small(p, x, options.max_evaluations, a, rss);
