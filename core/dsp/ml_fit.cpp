@@ -249,34 +249,39 @@ using SmallMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::Co
 using SmallVec = Eigen::Matrix<double, Eigen::Dynamic, 1, Eigen::ColMajor, kMaxSmall, 1>;
 
 // Solves M y = b for a symmetric positive definite M (n <= kMaxSmall, upper triangle read) by an
-// unpivoted Cholesky factorisation on fixed arrays; false when M is not numerically positive definite
-// (the caller then takes Eigen's pivoted LDLT). The LM systems here are Jacobi-scaled (unit diagonal
-// plus lambda), where Cholesky needs no pivoting; Eigen's dynamic-size LDLT and its solves were ~7 %
-// of a pipeline impact's analysis.
+// unpivoted L D L^T factorisation on fixed arrays; false when M is not numerically positive definite
+// (the caller then takes Eigen's pivoted LDLT or QR). The systems here are Jacobi-scaled (unit
+// diagonal, plus lambda in the LM steps), where the factorisation needs no pivoting. Eigen's
+// dynamic-size LDLT and its solves were ~7 % of a pipeline impact's analysis; one reciprocal per
+// column and no square roots keep the dependency chain short.
 bool cholesky_solve(const SmallMat& m, int n, const double* b, double* y) {
-  double l[kMaxSmall][kMaxSmall];
+  double l[kMaxSmall][kMaxSmall], dg[kMaxSmall], inv_d[kMaxSmall];
   for (int j = 0; j < n; ++j) {
+    double w[kMaxSmall];  // w[k] = l[j][k] d[k]
     double djj = m(j, j);
-    for (int k = 0; k < j; ++k) djj -= l[j][k] * l[j][k];
+    for (int k = 0; k < j; ++k) {
+      w[k] = l[j][k] * dg[k];
+      djj -= l[j][k] * w[k];
+    }
     if (!(djj > 0) || !std::isfinite(djj)) return false;
-    const double ljj = std::sqrt(djj);
-    l[j][j] = ljj;
-    const double inv = 1.0 / ljj;
+    dg[j] = djj;
+    inv_d[j] = 1.0 / djj;
     for (int i = j + 1; i < n; ++i) {
       double v = m(j, i);
-      for (int k = 0; k < j; ++k) v -= l[i][k] * l[j][k];
-      l[i][j] = v * inv;
+      for (int k = 0; k < j; ++k) v -= l[i][k] * w[k];
+      l[i][j] = v * inv_d[j];
     }
   }
   for (int i = 0; i < n; ++i) {  // L z = b
     double v = b[i];
     for (int k = 0; k < i; ++k) v -= l[i][k] * y[k];
-    y[i] = v / l[i][i];
+    y[i] = v;
   }
+  for (int i = 0; i < n; ++i) y[i] *= inv_d[i];  // D
   for (int i = n - 1; i >= 0; --i) {  // L^T y = z
     double v = y[i];
     for (int k = i + 1; k < n; ++k) v -= l[k][i] * y[k];
-    y[i] = v / l[i][i];
+    y[i] = v;
   }
   return true;
 }
@@ -534,7 +539,10 @@ void SpectralModeFitter::fit(std::span<const double> segment, std::span<const Mo
     for (int i = 0; i < n_par; ++i)
       for (int k = 0; k < n_par; ++k) scaled(i, k) = info(i, k) / (d[i] * d[k]);
     const Eigen::LDLT<Info> ldlt(scaled);
+    Vec inv_diag(n_par);  // (A^-1)_ii, from the well-posedness loop below when it completes
+    bool have_inv_diag = false;
     auto inverse_diagonal = [&](int i) {
+      if (have_inv_diag) return inv_diag[i];
       rhs.setZero();
       rhs[i] = 1.0;
       const Vec col = ldlt.solve(rhs);
@@ -568,9 +576,11 @@ void SpectralModeFitter::fit(std::span<const double> segment, std::span<const Mo
           diag += v * v / dvec[k];
         }
         const int i = static_cast<int>(idx[j]);
-        trace_inv += diag / (d[i] * d[i]);
+        inv_diag[i] = diag / (d[i] * d[i]);
+        trace_inv += inv_diag[i];
         finite = dvec[j] > 0 && std::isfinite(diag);
       }
+      have_inv_diag = finite;
       for (int i = 0; i < n_par; ++i) {
         double row = 0.0;
         for (int k = 0; k < n_par; ++k) row += std::abs(info(i, k));
