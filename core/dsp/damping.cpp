@@ -73,12 +73,24 @@ LineFit weighted_line_fit(std::size_t begin, std::size_t end, std::size_t stride
   for (std::size_t i = 0; i < count; ++i) {
     const double ti = tt[i];
     const std::size_t kmax = std::min(reach, count - 1 - i);
-    double a0 = 0, a1 = 0;  // sum_k rw_j rho_k and sum_k rw_j rho_k t_j
-    for (std::size_t k = 0; k <= kmax; ++k) {
-      const double r = rw[i + k] * rho[k];
-      a0 += r;
-      a1 += r * tt[i + k];
+    // a0 = sum_k rw_j rho_k and a1 = sum_k rw_j rho_k t_j (j = i + k), in four partial sums: one
+    // running sum is a serial chain of additions (measured ~4 % of an impact's analysis).
+    double p0[4] = {0, 0, 0, 0}, p1[4] = {0, 0, 0, 0};
+    std::size_t k = 0;
+    for (; k + 4 <= kmax + 1; k += 4) {
+      for (std::size_t q = 0; q < 4; ++q) {
+        const double r = rw[i + k + q] * rho[k + q];
+        p0[q] += r;
+        p1[q] += r * tt[i + k + q];
+      }
     }
+    for (; k <= kmax; ++k) {
+      const double r = rw[i + k] * rho[k];
+      p0[0] += r;
+      p1[0] += r * tt[i + k];
+    }
+    const double a0 = (p0[0] + p0[1]) + (p0[2] + p0[3]);
+    const double a1 = (p1[0] + p1[1]) + (p1[2] + p1[3]);
     m00 += rw[i] * a0;
     m01 += rw[i] * 0.5 * (ti * a0 + a1);
     m11 += rw[i] * ti * a1;

@@ -194,13 +194,15 @@ constexpr std::size_t kPhases = 8;
 using Pair = double __attribute__((vector_size(2 * sizeof(double))));
 constexpr std::size_t kPairs = kPhases / 2;
 
-void goertzel_recursions(const double* x_padded, std::size_t m_count, double coef, double* s1_out,
+// x holds m_full rows of kPhases samples; `tail` (nullptr when n is a multiple of kPhases) one more,
+// zero-padded: the segment is read in place, only its last partial row is copied. (Running two bins
+// per pass, to fill the issue slots a step's multiply-add latency leaves idle, measured no faster.)
+void goertzel_recursions(const double* x, std::size_t m_full, const double* tail, double coef, double* s1_out,
                          double* s2_out) {
   const Pair c = {coef, coef};
   Pair s1[kPairs], s2[kPairs];
   for (std::size_t q = 0; q < kPairs; ++q) s1[q] = s2[q] = Pair{0.0, 0.0};
-  for (std::size_t m = 0; m < m_count; ++m) {
-    const double* xm = x_padded + kPhases * m;
+  auto step = [&](const double* xm) {
     for (std::size_t q = 0; q < kPairs; ++q) {
       Pair xv;
       std::memcpy(&xv, xm + 2 * q, sizeof xv);
@@ -208,18 +210,24 @@ void goertzel_recursions(const double* x_padded, std::size_t m_count, double coe
       s2[q] = s1[q];
       s1[q] = s0;
     }
-  }
+  };
+  for (std::size_t m = 0; m < m_full; ++m) step(x + kPhases * m);
+  if (tail) step(tail);
   std::memcpy(s1_out, s1, sizeof s1);
   std::memcpy(s2_out, s2, sizeof s2);
 }
 
-void goertzel_bins(const double* x_padded, std::size_t n, const double* tw, std::size_t k_lo,
-                   std::size_t count, fftw_complex* out) {
+void goertzel_bins(const double* x, std::size_t n, const double* tw, std::size_t k_lo, std::size_t count,
+                   fftw_complex* out) {
   const std::size_t m_count = (n + kPhases - 1) / kPhases;
+  const std::size_t m_full = n / kPhases;
+  double tail[kPhases] = {};
+  std::copy(x + kPhases * m_full, x + n, tail);
   auto twiddle = [&](std::size_t m) { return cd(tw[2 * (m % n)], tw[2 * (m % n) + 1]); };
+  const double* tail_row = m_full < m_count ? tail : nullptr;
   double s1[kPhases], s2[kPhases];
   for (std::size_t k = k_lo; k < k_lo + count; ++k) {
-    goertzel_recursions(x_padded, m_count, 2.0 * tw[2 * ((k * kPhases) % n)], s1, s2);
+    goertzel_recursions(x, m_full, tail_row, 2.0 * tw[2 * ((k * kPhases) % n)], s1, s2);
     const cd e = twiddle(k * kPhases);
     const cd rot = twiddle(((k * kPhases) % n) * (m_count - 1));
     cd acc(0.0, 0.0);
@@ -240,10 +248,51 @@ constexpr int kMaxSmall = 12;
 using SmallMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::ColMajor, kMaxSmall, kMaxSmall>;
 using SmallVec = Eigen::Matrix<double, Eigen::Dynamic, 1, Eigen::ColMajor, kMaxSmall, 1>;
 
+// Solves M y = b for a symmetric positive definite M (n <= kMaxSmall, upper triangle read) by an
+// unpivoted L D L^T factorisation on fixed arrays; false when M is not numerically positive definite
+// (the caller then takes Eigen's pivoted LDLT or QR). The systems here are Jacobi-scaled (unit
+// diagonal, plus lambda in the LM steps), where the factorisation needs no pivoting. Eigen's
+// dynamic-size LDLT and its solves were ~7 % of a pipeline impact's analysis; one reciprocal per
+// column and no square roots keep the dependency chain short.
+bool cholesky_solve(const SmallMat& m, int n, const double* b, double* y) {
+  double l[kMaxSmall][kMaxSmall], dg[kMaxSmall], inv_d[kMaxSmall];
+  for (int j = 0; j < n; ++j) {
+    double w[kMaxSmall];  // w[k] = l[j][k] d[k]
+    double djj = m(j, j);
+    for (int k = 0; k < j; ++k) {
+      w[k] = l[j][k] * dg[k];
+      djj -= l[j][k] * w[k];
+    }
+    if (!(djj > 0) || !std::isfinite(djj)) return false;
+    dg[j] = djj;
+    inv_d[j] = 1.0 / djj;
+    for (int i = j + 1; i < n; ++i) {
+      double v = m(j, i);
+      for (int k = 0; k < j; ++k) v -= l[i][k] * w[k];
+      l[i][j] = v * inv_d[j];
+    }
+  }
+  for (int i = 0; i < n; ++i) {  // L z = b
+    double v = b[i];
+    for (int k = 0; k < i; ++k) v -= l[i][k] * y[k];
+    y[i] = v;
+  }
+  for (int i = 0; i < n; ++i) y[i] *= inv_d[i];  // D
+  for (int i = n - 1; i >= 0; --i) {  // L^T y = z
+    double v = y[i];
+    for (int k = i + 1; k < n; ++k) v -= l[k][i] * y[k];
+    y[i] = v;
+  }
+  return true;
+}
+
 // RSS = sum_k |X_k - model_k|^2 and, when A != nullptr, the normal equations A = Re(J^H J),
 // g = Re(J^H r) with r = X - model.
-double normal_equations(const Problem& p, const SmallVec& x, SmallMat* A, SmallVec* g) {
-  const int n = p.params();
+// N > 0: the parameter count as a compile-time constant (the pipeline's 6 and 8), so that the
+// accumulation loops unroll and vectorise; N = 0: p.params() at run time. Same arithmetic either way.
+template <int N>
+double normal_equations_n(const Problem& p, const SmallVec& x, SmallMat* A, SmallVec* g) {
+  const int n = N > 0 ? N : p.params();
   cd jrow[kMaxSmall];
   double jre[kMaxSmall], jim[kMaxSmall];
   double acc[kMaxSmall][kMaxSmall] = {};
@@ -274,6 +323,14 @@ double normal_equations(const Problem& p, const SmallVec& x, SmallMat* A, SmallV
   return rss;
 }
 
+double normal_equations(const Problem& p, const SmallVec& x, SmallMat* A, SmallVec* g) {
+  switch (p.params()) {
+    case 6: return normal_equations_n<6>(p, x, A, g);
+    case 8: return normal_equations_n<8>(p, x, A, g);
+    default: return normal_equations_n<0>(p, x, A, g);
+  }
+}
+
 // Minimises the RSS from x (updated in place). Stops when the next step would change every mode's
 // frequency by less than 1e-9 and its zeta by less than 1e-7 (relative; or the scaled parameters by
 // less than 1e-12 of their norm), or an accepted step reduced the RSS by less than 1e-12 of itself
@@ -296,8 +353,14 @@ bool minimise_small(const Problem& p, SmallVec& x, int max_evaluations, SmallMat
       for (int i = 0; i < n; ++i)
         for (int j = 0; j < n; ++j) m(i, j) = A(i, j) / (d[i] * d[j]);
       m.diagonal().array() += lambda;
-      const Eigen::LDLT<SmallMat> ldlt(m);
-      step = ldlt.solve(g.cwiseQuotient(d)).cwiseQuotient(d);
+      double rhs[kMaxSmall] = {}, y[kMaxSmall] = {};
+      for (int i = 0; i < n; ++i) rhs[i] = g[i] / d[i];
+      if (cholesky_solve(m, n, rhs, y)) {
+        for (int i = 0; i < n; ++i) step[i] = y[i] / d[i];
+      } else {
+        const Eigen::LDLT<SmallMat> ldlt(m);
+        step = ldlt.solve(g.cwiseQuotient(d)).cwiseQuotient(d);
+      }
       // Converged: the Gauss-Newton step (lambda is tiny by now) changes f by < 1e-9 relative and
       // zeta by < 1e-7 relative. Convergence is quadratic there, so the step is taken without
       // another evaluation: x + step is within ~(1e-7)^2 of the minimum (A and rss stay those of x,
@@ -338,7 +401,6 @@ struct SpectralModeFitter::Impl {
   fftw_complex* out = nullptr;
   fftw_plan plan = nullptr;
   std::vector<double> tw;  // e^{-2 pi i m / N}, interleaved re, im (Goertzel bins)
-  std::vector<double> padded;  // the segment, zero-padded to a multiple of kPhases (Goertzel bins)
   Problem p;               // per-fit bins and model, storage reused
 
   ~Impl() {
@@ -372,7 +434,6 @@ SpectralModeFitter::SpectralModeFitter(std::size_t segment_samples, double sampl
     impl_->tw[2 * m] = t.real();
     impl_->tw[2 * m + 1] = t.imag();
   }
-  impl_->padded.assign((segment_samples + kPhases - 1) / kPhases * kPhases, 0.0);
   // Room for every bin, so that fits never reallocate (real-time callers).
   const std::size_t max_bins = segment_samples / 2 + 1;
   Problem& p = impl_->p;
@@ -440,8 +501,7 @@ void SpectralModeFitter::fit(std::span<const double> segment, std::span<const Mo
   // (`ridgewatch modes`: thousands) go through the FFT.
   const std::size_t n_bins = k_hi - k_lo + 1;
   if (static_cast<double>(n_bins) <= 2.0 * std::log2(static_cast<double>(im.n))) {
-    std::copy(segment.begin(), segment.end(), im.padded.begin());
-    goertzel_bins(im.padded.data(), im.n, im.tw.data(), k_lo, n_bins, im.out);
+    goertzel_bins(segment.data(), im.n, im.tw.data(), k_lo, n_bins, im.out);
   } else {
     std::copy(segment.begin(), segment.end(), im.in);
     fftw_execute(im.plan);
@@ -450,7 +510,7 @@ void SpectralModeFitter::fit(std::span<const double> segment, std::span<const Mo
   const double k_half = std::max(0.5 * static_cast<double>(k_hi - k_lo), 1.0);
   for (std::size_t k = k_lo; k <= k_hi; ++k) {
     p.data.emplace_back(im.out[k][0], im.out[k][1]);
-    p.w.push_back(std::polar(1.0, -kTwoPi * static_cast<double>(k) / p.n_samples));
+    p.w.emplace_back(im.tw[2 * k], im.tw[2 * k + 1]);  // e^{-2 pi i k / N}, the same polar() value
     p.u.push_back((static_cast<double>(k) - k_mid) / k_half);
   }
   for (const double uk : p.u) {
@@ -471,10 +531,6 @@ void SpectralModeFitter::fit(std::span<const double> segment, std::span<const Mo
     result.noise_sd = std::sqrt(2.0 * s2 / p.n_samples);  // bin component variance = N sigma^2 / 2
     using Info = std::decay_t<decltype(info)>;
     using Vec = Eigen::Matrix<double, Eigen::Dynamic, 1, Eigen::ColMajor, Info::MaxRowsAtCompileTime, 1>;
-    // Well-posed: the smallest eigenvalue of J^T J above 1e-12 of the largest (eigenvalues only).
-    const Eigen::SelfAdjointEigenSolver<Info> eig(info, Eigen::EigenvaluesOnly);
-    const bool well_posed = eig.info() == Eigen::Success &&
-                            eig.eigenvalues().minCoeff() > 1e-12 * eig.eigenvalues().maxCoeff();
     // The needed diagonal entries of (J^T J)^-1 from an LDLT of the Jacobi-scaled matrix (unit
     // diagonal: the factorisation loses nothing to the parameters' different units).
     Vec d(n_par), rhs(n_par);
@@ -483,12 +539,61 @@ void SpectralModeFitter::fit(std::span<const double> segment, std::span<const Mo
     for (int i = 0; i < n_par; ++i)
       for (int k = 0; k < n_par; ++k) scaled(i, k) = info(i, k) / (d[i] * d[k]);
     const Eigen::LDLT<Info> ldlt(scaled);
+    Vec inv_diag(n_par);  // (A^-1)_ii, from the well-posedness loop below when it completes
+    bool have_inv_diag = false;
     auto inverse_diagonal = [&](int i) {
+      if (have_inv_diag) return inv_diag[i];
       rhs.setZero();
       rhs[i] = 1.0;
       const Vec col = ldlt.solve(rhs);
       return col[i] / (d[i] * d[i]);
     };
+    // Well-posed: the smallest eigenvalue of J^T J above 1e-12 of the largest. Bounds decide the
+    // clear cases without an eigensolver (it was ~8 % of a pipeline fit): for a positive definite A,
+    // lambda_min >= 1 / trace(A^-1) and lambda_max <= max_i sum_k |A_ik| (Gershgorin). A factor 2
+    // margin keeps the bounds' rounding from deciding a borderline case; those go to the solver.
+    // With scaled = P^T L D L^T P: (A^-1)_ii = sum_k (L^-1 P e_i)_k^2 / D_k / d_i^2.
+    bool well_posed = false;
+    if (ldlt.info() == Eigen::Success && ldlt.isPositive()) {
+      const auto& lu = ldlt.matrixLDLT();  // strictly lower part: L (unit diagonal)
+      const auto dvec = ldlt.vectorD();
+      // idx = P (0, 1, ..., n-1): (P x)_j = x_{idx_j} (P applies its transpositions in order).
+      Vec idx(n_par), y(n_par);
+      for (int i = 0; i < n_par; ++i) idx[i] = i;
+      const auto& tr = ldlt.transpositionsP();
+      for (int k = 0; k < n_par; ++k) std::swap(idx[k], idx[static_cast<int>(tr.coeff(k))]);
+      double trace_inv = 0.0, row_max = 0.0;
+      bool finite = true;
+      for (int j = 0; j < n_par && finite; ++j) {
+        // y = L^-1 e_j (forward substitution), contributing to (A^-1)_ii with i = idx_j.
+        y.setZero();
+        y[j] = 1.0;
+        double diag = 1.0 / dvec[j];
+        for (int k = j + 1; k < n_par; ++k) {
+          double v = 0.0;
+          for (int m = j; m < k; ++m) v -= lu(k, m) * y[m];
+          y[k] = v;
+          diag += v * v / dvec[k];
+        }
+        const int i = static_cast<int>(idx[j]);
+        inv_diag[i] = diag / (d[i] * d[i]);
+        trace_inv += inv_diag[i];
+        finite = dvec[j] > 0 && std::isfinite(diag);
+      }
+      have_inv_diag = finite;
+      for (int i = 0; i < n_par; ++i) {
+        double row = 0.0;
+        for (int k = 0; k < n_par; ++k) row += std::abs(info(i, k));
+        row_max = std::max(row_max, row);
+      }
+      well_posed = finite && std::isfinite(trace_inv) && std::isfinite(row_max) && trace_inv > 0 &&
+                   1.0 / trace_inv > 2e-12 * row_max;
+    }
+    if (!well_posed) {
+      const Eigen::SelfAdjointEigenSolver<Info> eig(info, Eigen::EigenvaluesOnly);
+      well_posed = eig.info() == Eigen::Success &&
+                   eig.eigenvalues().minCoeff() > 1e-12 * eig.eigenvalues().maxCoeff();
+    }
     for (int j = 0; j < p.modes; ++j) {
       double var_f = NAN, var_u = NAN;
       if (well_posed) {
@@ -544,7 +649,22 @@ void SpectralModeFitter::fit(std::span<const double> segment, std::span<const Mo
       gl[r] = g[lin[r]];
       for (int c = 0; c < n_lin; ++c) al(r, c) = a(lin[r], lin[c]);
     }
-    const SmallVec sol = al.colPivHouseholderQr().solve(gl);
+    // Jacobi-scaled Cholesky (QR with column pivoting when that matrix is not positive definite).
+    SmallVec sol(n_lin);
+    {
+      double dl[kMaxSmall] = {}, rhs[kMaxSmall] = {}, y[kMaxSmall] = {};
+      SmallMat als(n_lin, n_lin);
+      for (int r = 0; r < n_lin; ++r) dl[r] = al(r, r) > 0 ? std::sqrt(al(r, r)) : 1.0;
+      for (int r = 0; r < n_lin; ++r) {
+        rhs[r] = gl[r] / dl[r];
+        for (int c = 0; c < n_lin; ++c) als(r, c) = al(r, c) / (dl[r] * dl[c]);
+      }
+      if (cholesky_solve(als, n_lin, rhs, y)) {
+        for (int r = 0; r < n_lin; ++r) sol[r] = y[r] / dl[r];
+      } else {
+        sol = al.colPivHouseholderQr().solve(gl);
+      }
+    }
     for (int r = 0; r < n_lin; ++r) x[lin[r]] = sol[r];
     double rss = 0.0;
     const bool converged = minimise_small(p, x, options.max_evaluations, a, rss);

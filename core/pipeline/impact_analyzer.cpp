@@ -99,12 +99,23 @@ ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
   const std::size_t o = win.onset_offset;
   const double onset_s = static_cast<double>(o) / fs_;
 
-  // Peak and clipping in one pass that also makes the CWT's single-precision copy (vectorises).
-  double peak = 0.0;
-  for (std::size_t i = 0; i < n; ++i) {
-    peak = std::max(peak, std::abs(x[i]));
+  // Peak and clipping in one pass that also makes the CWT's single-precision copy; four running
+  // maxima (one is a serial chain of compare-selects: measured 2 % of the analysis).
+  double pk[4] = {0.0, 0.0, 0.0, 0.0};
+  std::size_t i = 0;
+  for (; i + 4 <= n; i += 4) {
+    for (std::size_t j = 0; j < 4; ++j) {
+      const double a = std::abs(x[i + j]);
+      pk[j] = a > pk[j] ? a : pk[j];
+      xf_[i + j] = static_cast<float>(x[i + j]);
+    }
+  }
+  for (; i < n; ++i) {
+    const double a = std::abs(x[i]);
+    pk[0] = a > pk[0] ? a : pk[0];
     xf_[i] = static_cast<float>(x[i]);
   }
+  const double peak = std::max(std::max(pk[0], pk[1]), std::max(pk[2], pk[3]));
   const bool clipped = peak >= clip_;
   const double peak_sq = peak * peak;
   auto finish = [&](ImpactStatus computed) {

@@ -207,7 +207,13 @@ struct StreamProcessor::Impl {
       kind = WindowEnd::gap;
     }
     const std::size_t n = static_cast<std::size_t>(end - w0);
-    for (std::size_t k = 0; k < n; ++k) window_buf[k] = static_cast<double>(raw[(w0 + k) & mask]);
+    // At most two contiguous pieces of the ring (a masked index per sample does not vectorise).
+    const auto slot = static_cast<std::size_t>(w0 & mask);
+    const std::size_t first = std::min(n, raw.size() - slot);
+    std::copy(raw.begin() + static_cast<std::ptrdiff_t>(slot), raw.begin() + static_cast<std::ptrdiff_t>(slot + first),
+              window_buf.begin());
+    std::copy(raw.begin(), raw.begin() + static_cast<std::ptrdiff_t>(n - first),
+              window_buf.begin() + static_cast<std::ptrdiff_t>(first));
     ImpactWindow win;
     win.samples = std::span<const double>(window_buf.data(), n);
     win.onset_offset = static_cast<std::size_t>(o - w0);
