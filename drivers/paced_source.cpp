@@ -21,23 +21,9 @@ PacedSource::PacedSource(Factory factory, PacedSourceConfig config) : factory_(s
   if (config_.loop) info_.frames.reset();
 }
 
-std::size_t PacedSource::read(std::span<double> out) {
-  if (!started_) {
-    start_ = std::chrono::steady_clock::now();
-    started_ = true;
-  }
-  if (pending_error_) std::rethrow_exception(std::exchange(pending_error_, nullptr));
-  std::size_t filled = 0;
+void PacedSource::fill(std::span<double> out, std::size_t& filled) {
   while (filled < out.size() && !ended_) {
-    std::size_t n = 0;
-    try {
-      n = inner_->read(out.subspan(filled));
-    } catch (...) {
-      if (filled == 0) throw;
-      pending_error_ = std::current_exception();
-      ended_ = true;
-      break;
-    }
+    const std::size_t n = inner_->read(out.subspan(filled));
     filled += n;
     samples_this_pass_ += n;
     if (n > 0) continue;
@@ -60,6 +46,24 @@ std::size_t PacedSource::read(std::span<double> out) {
     inner_ = std::move(next);
     samples_this_pass_ = 0;
     ++loops_completed_;
+  }
+}
+
+std::size_t PacedSource::read(std::span<double> out) {
+  if (!started_) {
+    start_ = std::chrono::steady_clock::now();
+    started_ = true;
+  }
+  if (pending_error_) std::rethrow_exception(std::exchange(pending_error_, nullptr));
+  std::size_t filled = 0;
+  // Any error after some samples of this call (the inner read, reopening for the next loop, a file that
+  // changed while looping) is held back: those samples are delivered first, the error comes next call.
+  try {
+    fill(out, filled);
+  } catch (...) {
+    if (filled == 0) throw;
+    pending_error_ = std::current_exception();
+    ended_ = true;
   }
   samples_delivered_ += filled;
   if (filled > 0 && config_.speed > 0.0) {

@@ -69,6 +69,9 @@ class PacedSource : public SampleSource {
   std::uint64_t samples_delivered_ = 0;
   std::uint64_t loops_completed_ = 0;
   std::uint64_t samples_this_pass_ = 0;
+  /// Reads from the inner source (reopening it to loop) until `out` is full or the stream ends;
+  /// `filled` counts the samples stored so far, also when it throws.
+  void fill(std::span<double> out, std::size_t& filled);
   bool ended_ = false;
   /// An error of the inner source after some samples of the same read(): those samples are delivered
   /// first and the error is rethrown by the next read(), so no good sample is lost.

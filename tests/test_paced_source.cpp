@@ -118,6 +118,8 @@ TEST(PacedSource, LoopRejectsASourceThatChanged) {
   rd::PacedSource source([&] { return std::make_unique<RampSource>(rate_hz, 10); }, {.speed = 0.0, .loop = true});
   rate_hz = 2000.0;
   std::vector<double> block(16);
+  // The first pass's 10 samples come first; the error when reopening follows on the next call.
+  ASSERT_EQ(source.read(block), 10u);
   try {
     source.read(block);
     FAIL() << "expected InputError";
@@ -176,4 +178,20 @@ TEST(PacedSource, ErrorAfterSomeSamplesDeliversThemFirst) {
         }
       },
       std::runtime_error);
+}
+
+// Looping: the file disappears between passes (the factory throws on reopening). The samples of the
+// last pass read in the same call must still be delivered, and the error must follow on the next call.
+TEST(PacedSource, ReopenFailureWhileLoopingDeliversTheSamplesReadFirst) {
+  int opened = 0;
+  rd::PacedSource source(
+      [&opened]() -> std::unique_ptr<rd::SampleSource> {
+        if (opened++ > 0) throw std::runtime_error("ramp: file does not exist");
+        return std::make_unique<RampSource>(1000.0, 250);
+      },
+      {.speed = 0.0, .loop = true});
+  std::vector<double> buf(1000);
+  ASSERT_EQ(source.read(buf), 250u);  // the whole first pass, then the reopen fails
+  EXPECT_EQ(buf[249], 249.0);
+  EXPECT_THROW(source.read(buf), std::runtime_error);
 }
