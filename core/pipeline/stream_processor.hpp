@@ -12,8 +12,9 @@
 //
 // Design and numbers: core/pipeline/impact_detector.hpp (detection, onset) and impact_analyzer.hpp
 // (CWT, ridge, estimators, status). Event latency: an impact is analysed once its window
-// [onset - pretrigger_s, onset + window_s) is final, i.e. when the next onset cuts it or 13.9 ms (the
-// onset look-back plus the refinement delay at the default detector settings) after its end.
+// [onset - pretrigger_s, onset + window_s) is final, i.e. when the next onset cuts it or 9.7-9.8 ms
+// (the detector's report_delay_samples(): onset look-back plus decision delay, default settings)
+// after its end.
 #pragma once
 
 #include <cstddef>
