@@ -159,8 +159,12 @@ ImpactDetector::ImpactDetector(const ImpactDetectorConfig& cfg, double fs, std::
     // Noise gain and fill-up of the whole chain for white input: the squared responses of the band
     // samples to a unit impulse at each of the D positions of a block, S[m] summed over the
     // positions. E[e] after m band samples of a segment = sum_{j <= m} S[j] (impulses in later blocks
-    // act like earlier ones on earlier band samples), the stationary value is sum S.
-    const std::size_t n_out = static_cast<std::size_t>(std::ceil(0.25 * fs_d_)) + 8;
+    // act like earlier ones on earlier band samples), the stationary value is sum S. Summed over
+    // 0.25 s, or longer for narrow bands: the slowest pole pair of the low-pass decays like
+    // exp(-2 pi B sin(22.5 deg) t), its squared response like exp(-4.81 B t), which is < 1e-6 after
+    // 2.9 / B s (0.25 s covered only 6 % of the sum at B = 1 Hz and 67 % at 2 Hz).
+    const double sum_s = std::max(0.25, 3.0 / bw);
+    const std::size_t n_out = static_cast<std::size_t>(std::ceil(sum_s * fs_d_)) + 8;
     std::vector<double> s(n_out, 0.0), x(n_out * dec_, 0.0);
     std::vector<std::complex<double>> y;
     for (std::size_t p = 0; p < dec_; ++p) {
@@ -221,7 +225,11 @@ ImpactDetector::ImpactDetector(const ImpactDetectorConfig& cfg, double fs, std::
   e_hist_.assign(esize, 0.0);
   e_mask_ = esize - 1;
   hist_ = taps_ + 8;
-  buf_x_.assign(hist_ + 64 * blk_ + blk_ + kSpikeDelay + 8, 0.0f);
+  // Room for 64 blocks after the history, the block in progress with its spike delay, and slack for
+  // finish(): it decides up to blk_ + kSpikeDelay - 1 samples and clears the two residual slots past
+  // them (the last at the block pointer, which may sit at the buffer's end: the shift only runs when
+  // it is past it).
+  buf_x_.assign(hist_ + 64 * blk_ + blk_ + kSpikeDelay + 8 + kSpikeDelay + dec_ + 8, 0.0f);
   buf_r_.assign(buf_x_.size(), 0.0f);
   restart(0);
 }
@@ -259,6 +267,7 @@ void ImpactDetector::restart(std::uint64_t first_index) {
   resum_left_ = pre_d_;
   lta_ = 0.0;
   lta_count_ = 0;
+  lta_raised_ = false;
   holdoff_end_ = lta_frozen_until_ = 0;
   confirming_ = false;
   confirmed_ = false;
@@ -488,8 +497,13 @@ void ImpactDetector::band_sample(std::complex<double> z) {
   // fill-up samples before the warm-up are divided by a tiny g and are unreliable; since the capped
   // mean may grow by at most (1 + 2/n) per sample, a start far too low would take ~100 ms to recover
   // and leave only PRE as the reference. So at the end of the warm-up the LTA is raised to the
-  // white-noise band power measured by the spike stage (see white_band_power()).
-  if (m + 1 == warmup_d_ && mad_count_ >= kMadWarmup) lta_ = std::max(lta_, kCapBias * white_band_power());
+  // white-noise band power measured by the spike stage (see white_band_power()), or, when that scale
+  // is not ready yet (it needs kMadWarmup samples: at 8 kHz with D = 1 the warm-up ends after ~24),
+  // at the first band sample after the warm-up where it is. Once per segment.
+  if (!lta_raised_ && m + 1 >= warmup_d_ && mad_count_ >= kMadWarmup) {
+    lta_ = std::max(lta_, kCapBias * white_band_power());
+    lta_raised_ = true;
+  }
   if (m >= lta_frozen_until_) {
     ++lta_count_;
     if (lta_count_ <= sta_d_) {

@@ -275,6 +275,7 @@ class ImpactDetector {
   std::size_t resum_left_ = 1;
   double lta_ = 0;
   std::uint64_t lta_count_ = 0;
+  bool lta_raised_ = false;  // the start-up raise to the white-noise band power has been done
   std::uint64_t holdoff_end_ = 0, lta_frozen_until_ = 0;
   bool confirming_ = false;
   std::uint64_t trigger_ = 0, peak_at_ = 0, peak_since_ = 0;
