@@ -170,9 +170,11 @@ class ImpactDetector {
   bool has_onset() const { return onset_count_ > 0; }
   std::uint64_t pop_onset();
 
-  /// Trigger-band power (mean e) over [begin, end) absolute indices, from the stored history (one e
-  /// per block, time-stamped with the block's last sample); NaN when the range is shorter than 8
-  /// samples or holds no stored block end.
+  /// Trigger-band power over [begin, end) absolute indices: the time average of e from the stored
+  /// history, one e per band sample (blk / D per block), band sample m stamped at seg_start + m D (the
+  /// end of its decimation step minus the FIR's group delay D - 1) and interpolated linearly between
+  /// band samples; only band samples after the chain's fill-up are used. NaN when the range is shorter
+  /// than 8 samples or its overlap with those stored band samples is.
   double band_power(std::uint64_t begin, std::uint64_t end) const;
   /// Robust noise floor: LTA (bias-corrected) of the band power.
   double lta() const { return lta_ / kCapBias; }
