@@ -170,9 +170,13 @@ void WindowSimulator::mesh_terms(double th, double& dc, double& e, double& de) c
     }
     return;
   }
+  phasor_sums(std::cos(th), std::sin(th), dc, e, de);
+}
+
+void WindowSimulator::phasor_sums(double c1, double s1, double& dc, double& e, double& de) const {
   // Re(a e^{ikθ}) = Re a cos kθ - Im a sin kθ, with cos kθ, sin kθ by the angle-addition recurrence
-  // (real arithmetic: std::complex products carry NaN/inf recovery branches).
-  const double c1 = std::cos(th), s1 = std::sin(th);
+  // from c1 = cos θ, s1 = sin θ (real arithmetic: std::complex products carry NaN/inf recovery branches).
+  dc = e = de = 0.0;
   double ck = c1, sk = s1;
   for (int k = 0; k < 4; ++k) {
     dc += dc_ph_[k].real() * ck - dc_ph_[k].imag() * sk;
@@ -283,15 +287,8 @@ void WindowSimulator::simulate(std::uint64_t first, std::size_t n, const Impact&
     const double cr = std::cos(dth), sr = std::sin(dth);
     double c1 = std::cos(th0), s1 = std::sin(th0);
     for (auto& g : grid) {
-      double dc = 0.0, e = 0.0, de = 0.0, ck = c1, sk = s1;
-      for (int k = 0; k < 4; ++k) {
-        dc += dc_ph_[k].real() * ck - dc_ph_[k].imag() * sk;
-        e += e_ph_[k].real() * ck - e_ph_[k].imag() * sk;
-        de += de_ph_[k].real() * ck - de_ph_[k].imag() * sk;
-        const double cn = ck * c1 - sk * s1;
-        sk = sk * c1 + ck * s1;
-        ck = cn;
-      }
+      double dc = 0.0, e = 0.0, de = 0.0;
+      phasor_sums(c1, s1, dc, e, de);
       g = {dc, e, de};
       const double cn = c1 * cr - s1 * sr;
       s1 = s1 * cr + c1 * sr;

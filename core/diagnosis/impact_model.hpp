@@ -114,6 +114,8 @@ class WindowSimulator {
   Steady steady_state(double mesh_hz) const;
   /// Δc(θ), e(θ), de/dθ summed over the effects (phasors when exact, else the effects' hooks).
   void mesh_terms(double th, double& dc, double& e, double& de) const;
+  /// The phasor sums of mesh_terms for cos θ = c1, sin θ = s1 (phasors exact).
+  void phasor_sums(double c1, double s1, double& dc, double& e, double& de) const;
 
   model::RigParameters rig_;
   PhysicsValues physics_;
