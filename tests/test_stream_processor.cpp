@@ -469,6 +469,8 @@ TEST(Validate, MessagesNameTheField) {
   EXPECT_EQ(message([](PipelineConfig& c) { c.sample_rate_hz = -1; }), "sample_rate_hz: must be > 0 (got -1)");
   EXPECT_EQ(message([](PipelineConfig& c) { c.detector.band_hi_hz = 13000; }),
             "detector.band_hi_hz: must be < sample_rate_hz / 2 = 12800 (got 13000)");
+  EXPECT_EQ(message([](PipelineConfig& c) { c.detector.band_hi_hz = c.detector.band_lo_hz + 1.0; }),
+            "detector.band_hi_hz: must be >= detector.band_lo_hz + 2 Hz = 732 (got 731)");
   EXPECT_EQ(message([](PipelineConfig& c) { c.detector.trigger_ratio = 1; }),
             "detector.trigger_ratio: must be > 1 (got 1)");
   EXPECT_EQ(message([](PipelineConfig& c) { c.analyzer.eta0 = 4; }), "analyzer.eta0: must be in [5, 50] (got 4)");

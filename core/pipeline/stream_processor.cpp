@@ -46,8 +46,10 @@ void validate(const PipelineConfig& c) {
   const double nyq = fs / 2;
   const ImpactDetectorConfig& d = c.detector;
   require(std::isfinite(d.band_lo_hz) && d.band_lo_hz > 0, "detector.band_lo_hz", "must be > 0", d.band_lo_hz);
-  require(std::isfinite(d.band_hi_hz) && d.band_hi_hz > d.band_lo_hz, "detector.band_hi_hz",
-          "must be > detector.band_lo_hz = " + num(d.band_lo_hz), d.band_hi_hz);
+  // At least 2 Hz wide: the detector's start-up tables span 3 / (half the width) seconds (1.5 s at
+  // 2 Hz), and an impact's envelope rises through the band's low-pass in about that time anyway.
+  require(std::isfinite(d.band_hi_hz) && d.band_hi_hz >= d.band_lo_hz + 2.0, "detector.band_hi_hz",
+          "must be >= detector.band_lo_hz + 2 Hz = " + num(d.band_lo_hz + 2.0), d.band_hi_hz);
   require(d.band_hi_hz < nyq, "detector.band_hi_hz", "must be < sample_rate_hz / 2 = " + num(nyq), d.band_hi_hz);
   require(std::isfinite(d.sta_s) && d.sta_s * fs >= 2, "detector.sta_s",
           "must be >= 2 samples (" + num(2 / fs) + " s)", d.sta_s);
