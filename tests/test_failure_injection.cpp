@@ -12,6 +12,7 @@
 
 #include <atomic>
 #include <cerrno>
+#include <cmath>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
@@ -207,8 +208,15 @@ TEST_F(FailureInjection, SigtermAtRandomMomentsLosesNothing) {
     const auto got = read_jsonl(events);
     ASSERT_LE(got.size(), ref.size());
     for (std::size_t i = 0; i < got.size(); ++i) {
+      if (i + 1 == got.size() && got[i]["status"] == "window_cut") {
+        // An impact detected at the shutdown: its onset is refined on the samples present (the
+        // envelope maximum after the trigger may be missing), so it may sit a little off the full
+        // analysis' onset; 0.5 ms is a fraction of the trigger band's 3 ms envelope rise.
+        const double shift = got[i]["sample_index"].get<double>() - ref[i]["sample_index"].get<double>();
+        EXPECT_LE(std::abs(shift), 0.0005 * 25600) << i;
+        continue;
+      }
       EXPECT_EQ(got[i]["sample_index"], ref[i]["sample_index"]) << i;
-      if (i + 1 == got.size() && got[i]["status"] == "window_cut") continue;
       EXPECT_EQ(got[i]["status"], ref[i]["status"]) << i;
       EXPECT_EQ(got[i]["zeta"], ref[i]["zeta"]) << i;
     }
