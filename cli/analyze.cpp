@@ -42,7 +42,6 @@ int run_analyze(const std::vector<std::string>& argv, std::ostream& out, std::os
   pipeline::StreamProcessor processor(cfg);
 
   constexpr std::size_t kBlock = 4096;
-  std::vector<double> in(kBlock);
   std::vector<float> block(kBlock);
   std::vector<pipeline::ImpactEvent> events;
   events.reserve(64);
@@ -52,9 +51,10 @@ int run_analyze(const std::vector<std::string>& argv, std::ostream& out, std::os
     events.clear();
   };
   for (;;) {
-    const std::size_t n = source->read(in);  // InputError (exit 3) names the file
+    // Single precision straight from the decoder, as ridgewatchd reads it; InputError (exit 3) names
+    // the file.
+    const std::size_t n = source->read_float(block);
     if (n == 0) break;
-    for (std::size_t k = 0; k < n; ++k) block[k] = static_cast<float>(in[k]);
     processor.process(std::span<const float>(block.data(), n), index, events);
     index += n;
     emit();

@@ -143,22 +143,22 @@ struct Daemon::Impl {
     // A block never exceeds half the ring, so a lossless replay always finds room for it eventually.
     const std::size_t wanted = unpaced ? std::size_t{16384} : static_cast<std::size_t>(std::clamp(fs / 400.0, 32.0, 65536.0));
     const std::size_t block = std::clamp<std::size_t>(ring->usable_items() / 2, 1, wanted);
-    std::vector<double> in(block);
     std::vector<float> out(block);
     try {
       const std::uint64_t limit = options.max_samples;
       std::uint64_t acquired = 0;
       while (!acq_stop.load(std::memory_order_relaxed)) {
-        std::span<double> want(in);
+        std::span<float> want(out);
         if (limit > 0) {
           if (acquired >= limit) break;
-          want = want.first(static_cast<std::size_t>(std::min<std::uint64_t>(in.size(), limit - acquired)));
+          want = want.first(static_cast<std::size_t>(std::min<std::uint64_t>(out.size(), limit - acquired)));
         }
-        const std::size_t n = source->read(want);
+        // Single precision straight from the decoder (the pipeline's input; the same values as
+        // rounding read()'s doubles, SampleSource::read_float).
+        const std::size_t n = source->read_float(want);
         acquired += n;
         if (const std::uint64_t lost = take_source_gap(*source); lost > 0) ring->skip(lost);
         if (n == 0) break;
-        for (std::size_t i = 0; i < n; ++i) out[i] = static_cast<float>(in[i]);
         // A replayed file can wait for the consumer (lossless, however fast the replay); live capture
         // cannot hold the device up, so there a full ring drops and counts (overrun, a gap downstream).
         while (!live && ring->writable_items() < n && !acq_stop.load(std::memory_order_relaxed))
@@ -346,7 +346,7 @@ int Daemon::run() {
   spdlog::info("started: source {} at {} Hz, events to {}", d.source_name, d.fs, d.cfg.output.events);
   d.notifier.ready(d.status_text());
 
-  std::vector<float> block(8192);
+  constexpr std::size_t kMaxChunk = 8192;
   std::vector<pipeline::ImpactEvent> events;
   events.reserve(256);
   auto last_status = Clock::now();
@@ -382,17 +382,21 @@ int Daemon::run() {
       spdlog::info("alarm latch reset");
     }
 
-    const auto r = d.ring->read(block);
-    if (r.count > 0) {
-      d.processor->process(std::span<const float>(block.data(), r.count), r.first_stream_index, events);
-      d.stats.samples += r.count;
+    // Processed in place in the ring (the producer never writes into unconsumed items), at most
+    // kMaxChunk samples at a time so that signals, the tacho and the watchdog are served in between.
+    const auto regions = d.ring->read_regions();
+    const std::span<const float> chunk = regions.first.first(std::min(regions.first.size(), kMaxChunk));
+    if (!chunk.empty()) {
+      d.processor->process(chunk, regions.first_stream_index, events);
+      d.ring->consume(chunk.size());
+      d.stats.samples += chunk.size();
       d.emit(events);
       events.clear();
       if (const std::uint64_t gaps = d.processor->gaps_seen(); gaps > d.stats.gaps) {
         // Samples lost upstream (ALSA xrun or device loss, ring overrun): the stream index jumped.
         d.stats.gaps = gaps;
         d.warn_limited("gap", fmt::format("gap in the input before sample {} ({} gaps so far, {} overrun samples)",
-                                          r.first_stream_index, gaps, d.ring->overrun_items()));
+                                          regions.first_stream_index, gaps, d.ring->overrun_items()));
       }
     } else if (d.acq_done.load(std::memory_order_acquire)) {
       if (d.ring->read_regions().size() == 0) break;  // input ended (or stop) and everything is processed

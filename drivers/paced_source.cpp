@@ -4,6 +4,7 @@
 #include <sstream>
 #include <stdexcept>
 #include <thread>
+#include <type_traits>
 #include <utility>
 
 namespace ridgewatch::drivers {
@@ -21,9 +22,12 @@ PacedSource::PacedSource(Factory factory, PacedSourceConfig config) : factory_(s
   if (config_.loop) info_.frames.reset();
 }
 
-void PacedSource::fill(std::span<double> out, std::size_t& filled) {
+template <typename T>
+void PacedSource::fill(std::span<T> out, std::size_t& filled) {
   while (filled < out.size() && !ended_) {
-    const std::size_t n = inner_->read(out.subspan(filled));
+    std::size_t n = 0;
+    if constexpr (std::is_same_v<T, float>) n = inner_->read_float(out.subspan(filled));
+    else n = inner_->read(out.subspan(filled));
     filled += n;
     samples_this_pass_ += n;
     if (n > 0) continue;
@@ -49,7 +53,8 @@ void PacedSource::fill(std::span<double> out, std::size_t& filled) {
   }
 }
 
-std::size_t PacedSource::read(std::span<double> out) {
+template <typename T>
+std::size_t PacedSource::paced_read(std::span<T> out) {
   if (!started_) {
     start_ = std::chrono::steady_clock::now();
     started_ = true;
@@ -75,6 +80,9 @@ std::size_t PacedSource::read(std::span<double> out) {
   }
   return filled;
 }
+
+std::size_t PacedSource::read(std::span<double> out) { return paced_read(out); }
+std::size_t PacedSource::read_float(std::span<float> out) { return paced_read(out); }
 
 void PacedSource::request_stop() {
   {

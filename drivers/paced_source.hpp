@@ -50,6 +50,8 @@ class PacedSource : public SampleSource {
   const SourceInfo& info() const override { return info_; }
   /// Fills `out` as far as the source allows (across loop boundaries), then sleeps until the block is due.
   std::size_t read(std::span<double> out) override;
+  /// The same in single precision, through the inner source's read_float (no double round trip).
+  std::size_t read_float(std::span<float> out) override;
 
   /// From any thread: a read() waiting for its block's due time returns at once (with the block),
   /// and later reads no longer wait. For prompt shutdown of a slow or stalled replay.
@@ -71,7 +73,10 @@ class PacedSource : public SampleSource {
   std::uint64_t samples_this_pass_ = 0;
   /// Reads from the inner source (reopening it to loop) until `out` is full or the stream ends;
   /// `filled` counts the samples stored so far, also when it throws.
-  void fill(std::span<double> out, std::size_t& filled);
+  template <typename T>
+  void fill(std::span<T> out, std::size_t& filled);
+  template <typename T>
+  std::size_t paced_read(std::span<T> out);
   bool ended_ = false;
   /// An error of the inner source after some samples of the same read(): those samples are delivered
   /// first and the error is rethrown by the next read(), so no good sample is lost.

@@ -48,10 +48,11 @@ void check_channel(const std::string& path, std::size_t channel, std::size_t cha
 
 /// Index of the first NaN or infinite sample (samples.size() if none) and the message naming its
 /// 0-based index in the stream and its time.
-std::size_t find_non_finite(const std::string& path, std::span<const double> samples, std::uint64_t first_index,
+template <typename T>
+std::size_t find_non_finite(const std::string& path, std::span<const T> samples, std::uint64_t first_index,
                             double rate_hz, std::string& message) {
   for (std::size_t i = 0; i < samples.size(); ++i) {
-    const double x = samples[i];
+    const T x = samples[i];
     if (std::isfinite(x)) continue;
     const std::uint64_t index = first_index + i;
     const char* what = std::isnan(x) ? "NaN" : (x > 0 ? "+Inf" : "-Inf");
@@ -134,30 +135,44 @@ std::optional<RiffWaveHeader> inspect_riff_wave(const std::string& path, std::ui
 /// Audio through libsndfile, streamed block by block.
 class SndfileSource final : public SampleSource {
  public:
-  SndfileSource(SNDFILE* file, SourceInfo info)
-      : file_(file, &sf_close), info_(std::move(info)), interleaved_(kBlockFrames * info_.channels) {}
+  SndfileSource(SNDFILE* file, SourceInfo info, bool double_data)
+      : file_(file, &sf_close), info_(std::move(info)), double_data_(double_data) {}
 
   const SourceInfo& info() const override { return info_; }
 
-  std::size_t read(std::span<double> out) override {
+  std::size_t read(std::span<double> out) override { return read_as(out, interleaved_); }
+  /// Decoded by libsndfile straight to float (no double round trip), except for 64-bit float files,
+  /// whose values beyond the float range the default path reports as such.
+  std::size_t read_float(std::span<float> out) override {
+    if (double_data_) return SampleSource::read_float(out);
+    return read_as(out, interleaved_float_);
+  }
+
+ private:
+  static sf_count_t readf(SNDFILE* file, double* dest, sf_count_t frames) { return sf_readf_double(file, dest, frames); }
+  static sf_count_t readf(SNDFILE* file, float* dest, sf_count_t frames) { return sf_readf_float(file, dest, frames); }
+
+  template <typename T>
+  std::size_t read_as(std::span<T> out, std::vector<T>& interleaved) {
     // A bad sample found by an earlier call: the good samples before it were delivered then.
     if (!pending_error_.empty()) throw InputError(pending_error_);
     std::size_t delivered = 0;
     while (delivered < out.size() && !finished_) {
       const std::size_t want = std::min(out.size() - delivered, kBlockFrames);
-      std::span<double> dest = out.subspan(delivered, want);
+      std::span<T> dest = out.subspan(delivered, want);
       sf_count_t got = 0;
       if (info_.channels == 1) {
-        got = sf_readf_double(file_.get(), dest.data(), static_cast<sf_count_t>(want));
+        got = readf(file_.get(), dest.data(), static_cast<sf_count_t>(want));
       } else {
-        got = sf_readf_double(file_.get(), interleaved_.data(), static_cast<sf_count_t>(want));
+        interleaved.resize(kBlockFrames * info_.channels);  // allocates on the first call only
+        got = readf(file_.get(), interleaved.data(), static_cast<sf_count_t>(want));
         for (sf_count_t f = 0; f < got; ++f) {
-          dest[static_cast<std::size_t>(f)] = interleaved_[static_cast<std::size_t>(f) * info_.channels + info_.channel];
+          dest[static_cast<std::size_t>(f)] = interleaved[static_cast<std::size_t>(f) * info_.channels + info_.channel];
         }
       }
       const auto got_frames = static_cast<std::size_t>(std::max<sf_count_t>(got, 0));
       std::string bad;
-      const std::size_t good = find_non_finite(info_.name, dest.first(got_frames), frames_read_, info_.sample_rate_hz, bad);
+      const std::size_t good = find_non_finite<T>(info_.name, dest.first(got_frames), frames_read_, info_.sample_rate_hz, bad);
       if (good < got_frames) {
         // Deliver the samples before the bad one (a consumer streaming block by block then sees the
         // same data whatever its block size) and report the error on this call if there are none,
@@ -179,7 +194,6 @@ class SndfileSource final : public SampleSource {
     return delivered;
   }
 
- private:
   /// Called at the end of the stream: a decoder error or fewer frames than the header declared
   /// means the file is damaged, and a shortened analysis would be a silent wrong answer.
   void check_complete() const {
@@ -196,7 +210,9 @@ class SndfileSource final : public SampleSource {
 
   std::unique_ptr<SNDFILE, int (*)(SNDFILE*)> file_;
   SourceInfo info_;
-  std::vector<double> interleaved_;  ///< one block of all channels (allocated once)
+  bool double_data_ = false;               ///< 64-bit float samples (read_float goes through double)
+  std::vector<double> interleaved_;        ///< one block of all channels (multichannel files)
+  std::vector<float> interleaved_float_;   ///< the same for read_float
   std::uint64_t frames_read_ = 0;
   bool finished_ = false;
   std::string pending_error_;  ///< NaN/Inf found after some good samples of the same call
@@ -275,7 +291,8 @@ std::unique_ptr<SampleSource> open_audio(const std::string& path, std::uint64_t 
   }
   if (info.frames && *info.frames == 0) throw InputError(path + ": empty (0 samples)");
 
-  return std::make_unique<SndfileSource>(file.release(), std::move(info));
+  const bool double_data = (sf_info.format & SF_FORMAT_SUBMASK) == SF_FORMAT_DOUBLE;
+  return std::make_unique<SndfileSource>(file.release(), std::move(info), double_data);
 }
 
 }  // namespace

@@ -1,6 +1,34 @@
 #include "drivers/sample_source.hpp"
 
+#include <cmath>
+#include <sstream>
+#include <utility>
+
 namespace ridgewatch::drivers {
+
+std::size_t SampleSource::read_float(std::span<float> out) {
+  if (!float_pending_error_.empty()) throw InputError(std::exchange(float_pending_error_, {}));
+  // One read() per call, as large as the caller's span (the scratch grows to the largest block once):
+  // a second read() could throw after samples of the first were converted, and those would be lost.
+  if (float_scratch_.size() < out.size()) float_scratch_.resize(out.size());
+  const std::size_t n = read(std::span<double>(float_scratch_.data(), out.size()));
+  for (std::size_t i = 0; i < n; ++i) {
+    out[i] = static_cast<float>(float_scratch_[i]);
+    if (std::isfinite(out[i])) continue;
+    // read() delivers finite samples only: this one is beyond the single-precision range. The samples
+    // before it are delivered now and the error comes with the next call (as read() does).
+    const std::uint64_t index = float_delivered_ + i;
+    std::ostringstream msg;
+    msg << info().name << ": sample " << index << " (" << float_scratch_[i]
+        << ") is beyond the single-precision range (|x| > 3.4e38)";
+    if (i == 0) throw InputError(msg.str());
+    float_pending_error_ = msg.str();
+    float_delivered_ += i;
+    return i;
+  }
+  float_delivered_ += n;
+  return n;
+}
 
 std::vector<double> read_all(SampleSource& source) {
   std::vector<double> samples;

@@ -35,6 +35,18 @@ class SampleSource {
   /// full scale = 1.0 for integer PCM). Returns the number written; 0 means end of stream.
   /// Throws InputError when the data turn out to be bad (NaN/Inf samples, truncated file).
   virtual std::size_t read(std::span<double> out) = 0;
+  /// The same stream as read(), rounded to single precision (the pipeline's input format), with the
+  /// same end-of-stream and error behaviour. Sources that decode to float directly override it and
+  /// skip the double round trip (libsndfile decodes float and up to 32-bit integer PCM straight to
+  /// float, with the same values as rounding its double output). The default reads through a double
+  /// buffer and rejects a sample beyond the float range (InputError naming its index, after the
+  /// samples before it were delivered, like a NaN). A caller uses one of the two for the whole stream.
+  virtual std::size_t read_float(std::span<float> out);
+
+ private:
+  std::vector<double> float_scratch_;  ///< the default read_float's double block (sized on first use)
+  std::uint64_t float_delivered_ = 0;  ///< samples delivered by the default read_float
+  std::string float_pending_error_;    ///< an out-of-range sample found after good ones of one call
 };
 
 /// Reads a source to its end.

@@ -107,6 +107,21 @@ TEST(PacedSource, LoopingIsSeamlessInSampleIndices) {
   EXPECT_EQ(opened, 4);
 }
 
+// read_float goes through the inner source's read_float (here the default double-buffer path of
+// SampleSource): the same seamless stream, straddling loop boundaries and short inner reads.
+TEST(PacedSource, ReadFloatLoopsSeamlesslyLikeRead) {
+  rd::PacedSource source([] { return std::make_unique<RampSource>(1000.0, 100, 37); }, {.speed = 0.0, .loop = true});
+  std::vector<float> block(64);
+  std::vector<float> all;
+  for (int i = 0; i < 6; ++i) {
+    ASSERT_EQ(source.read_float(block), block.size());
+    all.insert(all.end(), block.begin(), block.end());
+  }
+  for (std::size_t k = 0; k < all.size(); ++k) ASSERT_EQ(all[k], static_cast<float>(k % 100)) << "index " << k;
+  EXPECT_EQ(source.samples_delivered(), 384u);
+  EXPECT_EQ(source.loops_completed(), 3u);
+}
+
 TEST(PacedSource, LoopingAnEmptySourceEnds) {
   rd::PacedSource source([] { return std::make_unique<RampSource>(1000.0, 0); }, {.speed = 0.0, .loop = true});
   std::vector<double> block(16);

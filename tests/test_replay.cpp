@@ -15,6 +15,7 @@
 #include <numbers>
 #include <stdexcept>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "drivers/replay_file.hpp"
@@ -450,6 +451,99 @@ TEST_F(ReplayTest, NaNAndInfSamplesAreNamedByIndex) {
   x[5000] = -std::numeric_limits<double>::infinity();
   rd::write_wav(minus_inf_file, x, 8000.0);
   expect_input_error([&] { read_file(minus_inf_file); }, {minus_inf_file, "sample 5000 is -Inf"});
+}
+
+/// Reads a source to its end through read_float in blocks of `block` samples.
+std::vector<float> read_all_float(rd::SampleSource& source, std::size_t block = 1000) {
+  std::vector<float> all, buf(block);
+  for (;;) {
+    const std::size_t n = source.read_float(buf);
+    if (n == 0) break;
+    all.insert(all.end(), buf.begin(), buf.begin() + static_cast<std::ptrdiff_t>(n));
+  }
+  return all;
+}
+
+// read_float (libsndfile's float decoder, or the double path for 64-bit files) must give exactly the
+// values of read() rounded to float: the daemon and `ridgewatch analyze` read with it, the pipeline
+// was validated on the rounded doubles. Exact equality is the right check: both are one correctly
+// rounded conversion of the same stored value (integers scaled by a power of two, or float/double).
+TEST_F(ReplayTest, ReadFloatEqualsRoundedDoublesForEveryFormat) {
+  const int n = 9000;  // more than two of the driver's 4096-frame blocks
+  std::vector<int> ints(static_cast<std::size_t>(2 * n));
+  std::vector<double> reals(static_cast<std::size_t>(2 * n));
+  for (int i = 0; i < 2 * n; ++i) {
+    // All 32 bits busy (the low bits matter for PCM_32, whose values do not fit a float exactly).
+    const auto u = static_cast<std::uint32_t>(i) * 2654435761U;
+    ints[static_cast<std::size_t>(i)] = static_cast<int>(u);
+    reals[static_cast<std::size_t>(i)] = 0.9 * std::sin(0.0123 * i) + 1e-9 * (i % 7);
+  }
+  const std::vector<std::pair<std::string, int>> formats = {
+      {"pcm16.wav", SF_FORMAT_WAV | SF_FORMAT_PCM_16}, {"pcm24.wav", SF_FORMAT_WAV | SF_FORMAT_PCM_24},
+      {"pcm32.wav", SF_FORMAT_WAV | SF_FORMAT_PCM_32}, {"float.wav", SF_FORMAT_WAV | SF_FORMAT_FLOAT},
+      {"double.wav", SF_FORMAT_WAV | SF_FORMAT_DOUBLE}, {"flac24.flac", SF_FORMAT_FLAC | SF_FORMAT_PCM_24}};
+  for (const auto& [name, format] : formats) {
+    for (int channels : {1, 2}) {
+      SCOPED_TRACE(name + " channels " + std::to_string(channels));
+      const std::string file = path(std::to_string(channels) + name);
+      const int sub = format & SF_FORMAT_SUBMASK;
+      if (sub == SF_FORMAT_FLOAT || sub == SF_FORMAT_DOUBLE) {
+        SF_INFO info{};
+        info.samplerate = 8000;
+        info.channels = channels;
+        info.format = format;
+        SNDFILE* out = sf_open(file.c_str(), SFM_WRITE, &info);
+        ASSERT_NE(out, nullptr) << sf_strerror(nullptr);
+        ASSERT_EQ(sf_writef_double(out, reals.data(), n), n);
+        ASSERT_EQ(sf_close(out), 0);
+      } else {
+        write_int_pcm(file, format, 8000, channels, std::vector<int>(ints.begin(), ints.begin() + n * channels));
+      }
+      rd::ReplayOptions options;
+      options.channel = static_cast<std::size_t>(channels - 1);
+      const std::vector<double> d = read_file(file, options);
+      auto source = rd::open_replay(file, options);
+      const std::vector<float> f = read_all_float(*source, 777);
+      ASSERT_EQ(f.size(), d.size());
+      ASSERT_EQ(d.size(), static_cast<std::size_t>(n));
+      std::size_t differ = 0;
+      for (std::size_t i = 0; i < d.size(); ++i) differ += f[i] != static_cast<float>(d[i]);
+      EXPECT_EQ(differ, 0U);
+    }
+  }
+}
+
+TEST_F(ReplayTest, ReadFloatDeliversTheSamplesBeforeABadOneThenNamesIt) {
+  std::vector<double> x(6000, 0.25);
+  x[5000] = std::numeric_limits<double>::quiet_NaN();
+  const std::string file = path("nan.wav");
+  rd::write_wav(file, x, 8000.0);
+  auto source = rd::open_replay(file, {});
+  std::vector<float> buf(4500);
+  EXPECT_EQ(source->read_float(buf), 4500U);
+  EXPECT_EQ(source->read_float(buf), 500U);  // the good samples before the NaN
+  expect_input_error([&] { source->read_float(buf); }, {file, "sample 5000 is NaN"});
+}
+
+TEST_F(ReplayTest, ReadFloatRejectsADoubleBeyondTheFloatRange) {
+  // Finite in a 64-bit file, but +Inf once rounded to float: an error, never an Inf in the pipeline.
+  std::vector<double> x(3000, 0.5);
+  x[2100] = 1e300;
+  const std::string file = path("huge.wav");
+  SF_INFO info{};
+  info.samplerate = 8000;
+  info.channels = 1;
+  info.format = SF_FORMAT_WAV | SF_FORMAT_DOUBLE;
+  SNDFILE* out = sf_open(file.c_str(), SFM_WRITE, &info);
+  ASSERT_NE(out, nullptr) << sf_strerror(nullptr);
+  ASSERT_EQ(sf_writef_double(out, x.data(), 3000), 3000);
+  ASSERT_EQ(sf_close(out), 0);
+  EXPECT_EQ(read_file(file).size(), 3000U);  // read() delivers it as it is
+  auto source = rd::open_replay(file, {});
+  std::vector<float> buf(2000);
+  EXPECT_EQ(source->read_float(buf), 2000U);
+  EXPECT_EQ(source->read_float(buf), 100U);
+  expect_input_error([&] { source->read_float(buf); }, {file, "sample 2100", "single-precision range"});
 }
 
 /// Overwrites the sample-rate field (bytes 24..27, little endian) of a canonical 44-byte-header WAV.
