@@ -77,6 +77,12 @@ struct Daemon::Impl {
   // consumer's check and its wait costs at most the wait's time-out.
   std::mutex wake_mutex;
   std::condition_variable wake;
+  // Replay only: the producer waits here for room in a full ring (it used to poll every 200 us, which
+  // on one core stole time from the consumer). The consumer notifies after consuming, and only when the
+  // producer says it is waiting; a wake-up lost to that race costs at most the wait's time-out.
+  std::mutex space_mutex;
+  std::condition_variable space;
+  std::atomic<bool> producer_waiting{false};
 
   GpioLines gpio;
   std::vector<drivers::TachoEdge> edges;
@@ -161,8 +167,13 @@ struct Daemon::Impl {
         if (n == 0) break;
         // A replayed file can wait for the consumer (lossless, however fast the replay); live capture
         // cannot hold the device up, so there a full ring drops and counts (overrun, a gap downstream).
-        while (!live && ring->writable_items() < n && !acq_stop.load(std::memory_order_relaxed))
-          std::this_thread::sleep_for(std::chrono::microseconds(200));
+        while (!live && ring->writable_items() < n && !acq_stop.load(std::memory_order_relaxed)) {
+          std::unique_lock<std::mutex> lock(space_mutex);
+          producer_waiting.store(true);
+          space.wait_for(lock, std::chrono::milliseconds(2),
+                         [&] { return ring->writable_items() >= n || acq_stop.load(std::memory_order_relaxed); });
+          producer_waiting.store(false);
+        }
         ring->write(std::span<const float>(out.data(), n));
         acq_samples.fetch_add(n, std::memory_order_relaxed);
         wake.notify_one();
@@ -389,6 +400,7 @@ int Daemon::run() {
     if (!chunk.empty()) {
       d.processor->process(chunk, regions.first_stream_index, events);
       d.ring->consume(chunk.size());
+      if (d.producer_waiting.load()) d.space.notify_one();
       d.stats.samples += chunk.size();
       d.emit(events);
       events.clear();

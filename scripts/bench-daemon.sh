@@ -1,0 +1,39 @@
+#!/usr/bin/env bash
+# End-to-end throughput of ridgewatchd on one core: a simulated paper-rig recording (51.2 kHz mono,
+# noise 1 % of the impact peak, one impact per revolution at 25 Hz) replayed as fast as possible,
+# with both daemon threads pinned to one CPU (taskset), events written to a file.
+#
+#   scripts/bench-daemon.sh [BUILD_DIR] [SECONDS] [RUNS]
+#
+# BUILD_DIR defaults to build-bench (a Release build: scripts/build.sh build-bench
+# -DCMAKE_BUILD_TYPE=Release). Prints, per run, CPU time (user + system, both threads), wall time and
+# peak RSS, and the real-time factors = recording seconds / CPU seconds and / wall seconds. The
+# recording is generated once into $TMPDIR and reused.
+set -euo pipefail
+here=$(cd "$(dirname "$0")/.." && pwd)
+build=${1:-$here/build-bench}
+seconds=${2:-600}
+runs=${3:-3}
+for bin in "$build/cli/ridgewatch" "$build/daemon/ridgewatchd"; do
+  [[ -x $bin ]] || { echo "bench-daemon: $bin not found; build it first (scripts/build.sh $build -DCMAKE_BUILD_TYPE=Release)" >&2; exit 2; }
+done
+command -v taskset >/dev/null || { echo "bench-daemon: taskset (util-linux) is missing" >&2; exit 2; }
+tmp=${TMPDIR:-/tmp}
+rec="$tmp/ridgewatch-bench-${seconds}s"
+if [[ ! -f $rec.wav ]]; then
+  "$build/cli/ridgewatch" simulate --rig "$here/config/rigs/paper-rig.yaml" --duration "$seconds" --rate 51200 \
+    --noise 0.01 --out "$rec" >/dev/null 2>&1
+fi
+events="$tmp/ridgewatch-bench-events.jsonl"
+# The first CPU this shell may run on (its affinity list, e.g. "0,1" or "0-1").
+cpu=$(taskset -pc $$ | sed -E 's/.*: *([0-9]+).*/\1/')
+timing="$tmp/ridgewatch-bench-time.txt"
+for ((i = 1; i <= runs; i++)); do
+  rm -f "$events"  # ridgewatchd appends to an existing event log
+  /usr/bin/time -o "$timing" -f "%U %S %e %M" taskset -c "$cpu" "$build/daemon/ridgewatchd" --replay "$rec.wav" \
+    --speed max --events "$events" 2>/dev/null
+  read -r user sys wall rss_kb <"$timing"
+  awk -v s="$seconds" -v u="$user" -v y="$sys" -v w="$wall" -v r="$rss_kb" -v n="$(wc -l <"$events")" 'BEGIN {
+    c = u + y; printf "run: %d events, CPU %.3f s (user %.3f, sys %.3f), wall %.3f s, RSS %.1f MB -> %.0fx CPU, %.0fx wall (one core)\n",
+    n, c, u, y, w, r / 1024, s / c, s / w }'
+done
