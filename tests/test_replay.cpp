@@ -15,6 +15,7 @@
 #include <numbers>
 #include <stdexcept>
 #include <string>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
@@ -27,9 +28,11 @@ namespace fs = std::filesystem;
 
 namespace {
 
-/// Writes integer PCM through libsndfile's int API: values are 32-bit full scale, so an N-bit file
-/// stores the top N bits. Passing `v << (32 - N)` stores exactly v.
-void write_int_pcm(const std::string& path, int format, int rate_hz, int channels, const std::vector<int>& interleaved) {
+/// Writes frames through libsndfile's int or double API in any format. Ints are 32-bit full scale,
+/// so an N-bit file stores the top N bits (passing `v << (32 - N)` stores exactly v); doubles are
+/// rounded/scaled to the format as a recorder would.
+template <typename T>
+void write_audio(const std::string& path, int format, int rate_hz, int channels, const std::vector<T>& interleaved) {
   SF_INFO info{};
   info.samplerate = rate_hz;
   info.channels = channels;
@@ -37,8 +40,17 @@ void write_int_pcm(const std::string& path, int format, int rate_hz, int channel
   SNDFILE* file = sf_open(path.c_str(), SFM_WRITE, &info);
   ASSERT_NE(file, nullptr) << path << ": " << sf_strerror(nullptr);
   const auto frames = static_cast<sf_count_t>(interleaved.size()) / channels;
-  EXPECT_EQ(sf_writef_int(file, interleaved.data(), frames), frames);
+  if constexpr (std::is_same_v<T, int>) EXPECT_EQ(sf_writef_int(file, interleaved.data(), frames), frames);
+  else EXPECT_EQ(sf_writef_double(file, interleaved.data(), frames), frames);
   ASSERT_EQ(sf_close(file), 0);
+}
+
+void write_int_pcm(const std::string& path, int format, int rate_hz, int channels, const std::vector<int>& interleaved) {
+  write_audio(path, format, rate_hz, channels, interleaved);
+}
+void write_double_audio(const std::string& path, int format, int rate_hz, int channels,
+                        const std::vector<double>& interleaved) {
+  write_audio(path, format, rate_hz, channels, interleaved);
 }
 
 void write_text(const std::string& path, const std::string& content) {
@@ -157,16 +169,9 @@ TEST_F(ReplayTest, Wav16BitFromDoublesWithinQuantisation) {
   // back / 32768, so the error is at most half a step plus the scale mismatch |x| / 32768:
   // <= 1.5 * 2^-15 for |x| <= 1.
   const std::string file = path("sine16.wav");
-  SF_INFO info{};
-  info.samplerate = 25600;
-  info.channels = 1;
-  info.format = SF_FORMAT_WAV | SF_FORMAT_PCM_16;
-  SNDFILE* out = sf_open(file.c_str(), SFM_WRITE, &info);
-  ASSERT_NE(out, nullptr);
   std::vector<double> sine(2560);
   for (std::size_t i = 0; i < sine.size(); ++i) sine[i] = 0.9 * std::sin(2.0 * std::numbers::pi * 854.0 * static_cast<double>(i) / 25600.0);
-  ASSERT_EQ(sf_writef_double(out, sine.data(), static_cast<sf_count_t>(sine.size())), static_cast<sf_count_t>(sine.size()));
-  sf_close(out);
+  write_double_audio(file, SF_FORMAT_WAV | SF_FORMAT_PCM_16, 25600, 1, sine);
 
   const auto samples = read_file(file);
   ASSERT_EQ(samples.size(), sine.size());
@@ -488,14 +493,7 @@ TEST_F(ReplayTest, ReadFloatEqualsRoundedDoublesForEveryFormat) {
       const std::string file = path(std::to_string(channels) + name);
       const int sub = format & SF_FORMAT_SUBMASK;
       if (sub == SF_FORMAT_FLOAT || sub == SF_FORMAT_DOUBLE) {
-        SF_INFO info{};
-        info.samplerate = 8000;
-        info.channels = channels;
-        info.format = format;
-        SNDFILE* out = sf_open(file.c_str(), SFM_WRITE, &info);
-        ASSERT_NE(out, nullptr) << sf_strerror(nullptr);
-        ASSERT_EQ(sf_writef_double(out, reals.data(), n), n);
-        ASSERT_EQ(sf_close(out), 0);
+        write_double_audio(file, format, 8000, channels, std::vector<double>(reals.begin(), reals.begin() + n * channels));
       } else {
         write_int_pcm(file, format, 8000, channels, std::vector<int>(ints.begin(), ints.begin() + n * channels));
       }
@@ -530,14 +528,7 @@ TEST_F(ReplayTest, ReadFloatRejectsADoubleBeyondTheFloatRange) {
   std::vector<double> x(3000, 0.5);
   x[2100] = 1e300;
   const std::string file = path("huge.wav");
-  SF_INFO info{};
-  info.samplerate = 8000;
-  info.channels = 1;
-  info.format = SF_FORMAT_WAV | SF_FORMAT_DOUBLE;
-  SNDFILE* out = sf_open(file.c_str(), SFM_WRITE, &info);
-  ASSERT_NE(out, nullptr) << sf_strerror(nullptr);
-  ASSERT_EQ(sf_writef_double(out, x.data(), 3000), 3000);
-  ASSERT_EQ(sf_close(out), 0);
+  write_double_audio(file, SF_FORMAT_WAV | SF_FORMAT_DOUBLE, 8000, 1, x);
   EXPECT_EQ(read_file(file).size(), 3000U);  // read() delivers it as it is
   auto source = rd::open_replay(file, {});
   std::vector<float> buf(2000);
