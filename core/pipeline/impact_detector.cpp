@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <bit>
 #include <cmath>
+#include <cstring>
 #include <numbers>
 
 #include "core/pipeline/stream_processor.hpp"
@@ -33,47 +34,59 @@ Biquad make_biquad(double f_hz, double q, double fs, bool high) {
 
 constexpr double kSixth = 1.0 / 6.0;
 
-// Dot product of FIR taps with samples (float, see the header: stage 2a), n a multiple of 4; four
-// partial sums so that the compiler can keep them in one vector register (a single running sum is a
-// serial dependency chain).
-inline double dot4(const float* x, const float* g, std::size_t n) {
-  float a0 = 0, a1 = 0, a2 = 0, a3 = 0;
-  for (std::size_t k = 0; k < n; k += 4) {
-    a0 += g[k] * x[k];
-    a1 += g[k + 1] * x[k + 1];
-    a2 += g[k + 2] * x[k + 2];
-    a3 += g[k + 3] * x[k + 3];
-  }
-  return static_cast<double>((a0 + a1) + (a2 + a3));
+// Four floats in one register (SSE2 on x86-64, NEON on AArch64), with GCC/Clang vector extensions:
+// the four partial sums below are four independent lanes. Written as plain loops over four scalar
+// partial sums, GCC 12 vectorises across the groups of four instead and then adds the lanes in order,
+// one scalar add per element (the sums must keep their order: float addition is not associative and
+// the results are bit-identical to the scalar definition). Lane j of a sum holds the elements
+// k = j (mod 4) in order; the lanes are combined as (s0 + s1) + (s2 + s3).
+using F4 = float __attribute__((vector_size(16)));
+using I4 = std::int32_t __attribute__((vector_size(16)));
+using V2d = double __attribute__((vector_size(16)));  // I and Q lanes of the trigger band's low-pass
+
+inline F4 load4(const float* p) {
+  F4 v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
 }
 
+inline float lanes_sum(F4 s) { return (s[0] + s[1]) + (s[2] + s[3]); }
+
+// Dot products of the samples with the real and imaginary FIR taps (float, see the header: stage 2a),
+// n a multiple of 4.
 inline void fir_dot(const float* x, const float* g_re, const float* g_im, std::size_t n, double& re, double& im) {
-  re = dot4(x, g_re, n);
-  im = dot4(x, g_im, n);
+  F4 a_re = {0, 0, 0, 0}, a_im = {0, 0, 0, 0};
+  for (std::size_t k = 0; k < n; k += 4) {
+    const F4 xv = load4(x + k);
+    a_re += load4(g_re + k) * xv;
+    a_im += load4(g_im + k) * xv;
+  }
+  re = static_cast<double>(lanes_sum(a_re));
+  im = static_cast<double>(lanes_sum(a_im));
 }
 
-// Sum of min(|r|, clip) and whether any |r| > above, with four partial sums and an integer flag so
-// that the loop vectorises (a single floating-point running sum is a serial dependency chain).
+// Sum of min(|r|, clip) and whether any |r| > above (the remainder of n mod 4 goes to lane 0).
 inline bool clipped_sum_any_above(const float* r, std::size_t n, float clip, float above, double& sum) {
-  float s0 = 0, s1 = 0, s2 = 0, s3 = 0;
-  int any = 0;
+  const F4 vclip = {clip, clip, clip, clip}, vabove = {above, above, above, above};
+  constexpr std::int32_t kNoSign = 0x7fffffff;
+  const I4 no_sign = {kNoSign, kNoSign, kNoSign, kNoSign};
+  F4 s = {0, 0, 0, 0};
+  I4 any = {0, 0, 0, 0};
   std::size_t k = 0;
   for (; k + 4 <= n; k += 4) {
-    const float a0 = std::abs(r[k]), a1 = std::abs(r[k + 1]), a2 = std::abs(r[k + 2]), a3 = std::abs(r[k + 3]);
-    s0 += std::min(a0, clip);
-    s1 += std::min(a1, clip);
-    s2 += std::min(a2, clip);
-    s3 += std::min(a3, clip);
-    any |= static_cast<int>(a0 > above) | static_cast<int>(a1 > above) | static_cast<int>(a2 > above) |
-           static_cast<int>(a3 > above);
+    const F4 a = reinterpret_cast<F4>(reinterpret_cast<I4>(load4(r + k)) & no_sign);  // |r|
+    s += vclip < a ? vclip : a;  // std::min(a, clip)
+    any |= a > vabove;
   }
+  float s0 = s[0];
+  bool above_any = (any[0] | any[1] | any[2] | any[3]) != 0;
   for (; k < n; ++k) {
     const float a = std::abs(r[k]);
     s0 += std::min(a, clip);
-    any |= static_cast<int>(a > above);
+    above_any |= a > above;
   }
-  sum = static_cast<double>((s0 + s1) + (s2 + s3));
-  return any != 0;
+  sum = static_cast<double>((s0 + s[1]) + (s[2] + s[3]));
+  return above_any;
 }
 
 }  // namespace
@@ -225,11 +238,11 @@ ImpactDetector::ImpactDetector(const ImpactDetectorConfig& cfg, double fs, std::
   e_hist_.assign(esize, 0.0);
   e_mask_ = esize - 1;
   hist_ = taps_ + 8;
-  // Room for 64 blocks after the history, the block in progress with its spike delay, and slack for
-  // finish(): it decides up to blk_ + kSpikeDelay - 1 samples and clears the two residual slots past
-  // them (the last at the block pointer, which may sit at the buffer's end: the shift only runs when
-  // it is past it).
-  buf_x_.assign(hist_ + 64 * blk_ + blk_ + kSpikeDelay + 8 + kSpikeDelay + dec_ + 8, 0.0f);
+  // Room for 64 blocks after the history, the block in progress with its spike delay, and slack:
+  // finish() decides up to blk_ + kSpikeDelay - 1 samples and clears the two residual slots past them,
+  // decide_block() reads and writes a little past the block's last pushed sample; the buffer is
+  // shifted before the block pointer leaves fewer than kReadAhead slots after it.
+  buf_x_.assign(hist_ + 64 * blk_ + blk_ + kSpikeDelay + 8 + kSpikeDelay + kReadAhead + dec_ + 8, 0.0f);
   buf_r_.assign(buf_x_.size(), 0.0f);
   restart(0);
 }
@@ -369,32 +382,78 @@ void ImpactDetector::decide_block(std::uint64_t b, std::size_t len, std::size_t 
   const std::size_t d = len;
   const float* x = buf_x_.data() + (b - base_);
   float* r = buf_r_.data() + (b - base_);
-  if (b == seg_start_) r[0] = r[1] = 0.0f;
   constexpr float kSixthF = 1.0f / 6.0f;
-  {
-    // Separate buffers: __restrict lets the loop vectorise without a run-time overlap check.
-    const float* __restrict xs = x;
-    float* __restrict rs = r;
-    for (std::size_t i = 2; i < 2 + n_res; ++i)
-      rs[i] = xs[i] - (-xs[i - 2] + 4.0f * xs[i - 1] + 4.0f * xs[i + 1] - xs[i + 2]) * kSixthF;
-  }
-  for (std::size_t i = 2 + n_res; i < d + 2; ++i) r[i] = 0.0f;  // end of segment: no right neighbours
-
   // Robust scale: MAD from the winsorised mean |r| (Gaussian: E|r| = 0.7979 sd, MAD = 0.6745 sd).
   // The absolute floor keeps float32 rounding of an otherwise noise-free signal from looking noisy
   // or, with digital silence, everything from looking like a spike.
   const std::size_t first = b == seg_start_ ? 2 : 0;
   const auto clip = static_cast<float>(3.0 * mad_sum_ + 1e-30);
-  if (test_spikes && mad_count_ >= kMadWarmup) {
-    const double t_mad = spike_k_ * std::max(0.6745 / 0.7979 * mad_sum_, 1e-9);
-    // Vectorisable pre-test (and the scale update's clipped sum, valid when nothing is removed);
-    // only a block with a candidate runs the sequential isolation test (a corrected neighbour can
-    // become a candidate, so the scan re-reads r).
-    double s = 0.0;
-    if (!clipped_sum_any_above(r + first, d - first, clip, static_cast<float>(t_mad), s)) {
-      mad_sum_ += mad_beta_ * (s * inv_blk_ - mad_sum_);  // first == 0 and d == blk_ here
+  const bool scan = test_spikes && mad_count_ >= kMadWarmup;
+  const double t_mad = spike_k_ * std::max(0.6745 / 0.7979 * mad_sum_, 1e-9);
+  if (scan && first == 0 && n_res == d) {
+    // The common block: residuals, their clipped sum and the candidate pre-test in one pass over
+    // vectors of four at [4i, 4i + 4) from the block start, the lanes of clipped_sum_any_above() (the
+    // same sums, bit for bit; the clipped sum reads the residuals from registers, not back from
+    // memory). The first vector keeps r[0], r[1] (from the previous block, possibly corrected by its
+    // spike test); the last one also writes up to two residuals past b + d + 1 from samples not yet
+    // pushed, which the next block recomputes before anything reads them (the buffer has room).
+    const F4 four = {4.0f, 4.0f, 4.0f, 4.0f}, sixth = {kSixthF, kSixthF, kSixthF, kSixthF};
+    const F4 vclip = {clip, clip, clip, clip};
+    const auto above = static_cast<float>(t_mad);
+    const F4 vabove = {above, above, above, above};
+    constexpr std::int32_t kNoSign = 0x7fffffff;
+    const I4 no_sign = {kNoSign, kNoSign, kNoSign, kNoSign};
+    const std::size_t n_vec = (d + 2 + 3) / 4, n_sum = d / 4;
+    F4 sum = {0, 0, 0, 0};
+    I4 any = {0, 0, 0, 0};
+    for (std::size_t v = 0; v < n_vec; ++v) {
+      const float* xv = x + 4 * v;
+      F4 rv = load4(xv) - (-load4(xv - 2) + four * load4(xv - 1) + four * load4(xv + 1) - load4(xv + 2)) * sixth;
+      if (v == 0) {
+        rv[0] = r[0];
+        rv[1] = r[1];
+      }
+      std::memcpy(r + 4 * v, &rv, sizeof rv);
+      if (v < n_sum) {
+        const F4 a = reinterpret_cast<F4>(reinterpret_cast<I4>(rv) & no_sign);  // |r|
+        sum += vclip < a ? vclip : a;  // std::min(a, clip)
+        any |= a > vabove;
+      }
+    }
+    float s0 = sum[0];
+    bool candidate = (any[0] | any[1] | any[2] | any[3]) != 0;
+    for (std::size_t i = 4 * n_sum; i < d; ++i) {  // d mod 4 left: lane 0, in order
+      const float a = std::abs(r[i]);
+      s0 += std::min(a, clip);
+      candidate |= a > above;
+    }
+    if (!candidate) {
+      const auto s = static_cast<double>((s0 + sum[1]) + (sum[2] + sum[3]));
+      mad_sum_ += mad_beta_ * (s * inv_blk_ - mad_sum_);  // as below
       return;
     }
+  } else {
+    if (b == seg_start_) r[0] = r[1] = 0.0f;
+    {
+      // Separate buffers: __restrict lets the loop vectorise without a run-time overlap check.
+      const float* __restrict xs = x;
+      float* __restrict rs = r;
+      for (std::size_t i = 2; i < 2 + n_res; ++i)
+        rs[i] = xs[i] - (-xs[i - 2] + 4.0f * xs[i - 1] + 4.0f * xs[i + 1] - xs[i + 2]) * kSixthF;
+    }
+    for (std::size_t i = 2 + n_res; i < d + 2; ++i) r[i] = 0.0f;  // end of segment: no right neighbours
+    if (scan) {
+      // Vectorisable pre-test (and the scale update's clipped sum, valid when nothing is removed);
+      // only a block with a candidate runs the sequential isolation test (a corrected neighbour can
+      // become a candidate, so the scan re-reads r).
+      double s = 0.0;
+      if (!clipped_sum_any_above(r + first, d - first, clip, static_cast<float>(t_mad), s)) {
+        mad_sum_ += mad_beta_ * (s * inv_blk_ - mad_sum_);  // first == 0 and d == blk_ here
+        return;
+      }
+    }
+  }
+  if (scan) {
     const std::size_t last = std::min(d, n_res);  // n needs residuals up to n + 2
     for (std::size_t i = 0; i < last; ++i)
       if (std::abs(r[i]) > t_mad) spike_test(b + i, t_mad);
@@ -419,17 +478,125 @@ void ImpactDetector::decide_block(std::uint64_t b, std::size_t len, std::size_t 
 
 void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
   // Complex demodulation + anti-alias FIR + decimation: one band sample per D samples, at the last
-  // index of each.
-  for (std::size_t j = 0; j < count; ++j) {
+  // index of each; then the I/Q low-pass, the energy history, the STA/PRE sums and the LTA. The hot
+  // state lives in locals for the whole block (the stores into the energy history could otherwise
+  // alias the members, which the compiler would then reload for every band sample); the members are
+  // written back before the trigger logic runs. I and Q share the low-pass: one lane each of a
+  // two-double vector, with the arithmetic of Biquad::step per lane.
+  const float* x = buf_x_.data() + (b - base_) + dec_ - taps_;  // the first step's FIR window
+  const float* const g_re = g_re_.data();
+  const float* const g_im = g_im_.data();
+  const std::size_t taps = taps_;
+  double* const eh = e_hist_.data();
+  const std::uint64_t mask = e_mask_;
+  const std::uint64_t n_fill = fill_.size();
+  const std::uint64_t sta_d = sta_d_, full_d = sta_d_ + pre_d_;
+  const double rot_re = rot_d_.real(), rot_im = rot_d_.imag();
+  const double keep = lta_keep_, alpha = lta_alpha_, cap_alpha = lta_cap_alpha_;
+  auto splat = [](double v) { return V2d{v, v}; };
+  const Biquad& c1 = proto_.s1;
+  const Biquad& c2 = proto_.s2;
+  const V2d b0_1 = splat(c1.b0), b1_1 = splat(c1.b1), b2_1 = splat(c1.b2), a1_1 = splat(c1.a1), a2_1 = splat(c1.a2);
+  const V2d b0_2 = splat(c2.b0), b1_2 = splat(c2.b1), b2_2 = splat(c2.b2), a1_2 = splat(c2.a1), a2_2 = splat(c2.a2);
+  V2d s1_1 = {lp_i_.s1.s1, lp_q_.s1.s1}, s2_1 = {lp_i_.s1.s2, lp_q_.s1.s2};
+  V2d s1_2 = {lp_i_.s2.s1, lp_q_.s2.s1}, s2_2 = {lp_i_.s2.s2, lp_q_.s2.s2};
+  double ph_re = phasor_.real(), ph_im = phasor_.imag();
+  double sta_sum = sta_sum_, pre_sum = pre_sum_, lta = lta_;
+  std::uint64_t m = band_count_;
+  for (std::size_t j = 0; j < count; ++j, x += dec_, ++m) {
     double re = 0.0, im = 0.0;
-    fir_dot(buf_x_.data() + (b - base_) + (j + 1) * dec_ - taps_, g_re_.data(), g_im_.data(), taps_, re, im);
-    const std::complex<double> z = std::complex<double>(re, im) * phasor_;
-    // The phasor advances by e^{-i w D} per band sample; renormalised every 64 (Newton step on
-    // |p|^2 = 1) so rounding cannot make it drift.
-    phasor_ *= rot_d_;
-    if ((band_count_ & 63) == 0) phasor_ *= 0.5 * (3.0 - std::norm(phasor_));
-    band_sample(z);
+    fir_dot(x, g_re, g_im, taps, re, im);
+    // z = (re + i im) e^{-i w j}; the phasor advances by e^{-i w D} per band sample, renormalised
+    // every 64 (Newton step on |p|^2 = 1) so rounding cannot make it drift. (Complex products
+    // written out: (a + ib)(c + id) = (ac - bd) + i(ad + bc).)
+    const V2d z = {re * ph_re - im * ph_im, re * ph_im + im * ph_re};
+    const double next_re = ph_re * rot_re - ph_im * rot_im;
+    ph_im = ph_re * rot_im + ph_im * rot_re;
+    ph_re = next_re;
+    if ((m & 63) == 0) {
+      const double g = 0.5 * (3.0 - (ph_re * ph_re + ph_im * ph_im));
+      ph_re *= g;
+      ph_im *= g;
+    }
+    // 4th-order low-pass on I and Q (Biquad::step, two stages).
+    const V2d y1 = b0_1 * z + s1_1;
+    s1_1 = (b1_1 * z + s2_1) - a1_1 * y1;
+    s2_1 = b2_1 * z - a2_1 * y1;
+    const V2d y = b0_2 * y1 + s1_2;
+    s1_2 = (b1_2 * y1 + s2_2) - a1_2 * y;
+    s2_2 = b2_2 * y1 - a2_2 * y;
+    double e = y[0] * y[0] + y[1] * y[1];
+    // While the chain fills up after a (re)start, stationary input gives E[e] = E_inf g(m): divide by
+    // g so the start of a record is not a rising edge.
+    if (m < n_fill) e /= fill_[static_cast<std::size_t>(m)];
+    eh[m & mask] = e;
+    // Running sums of the STA window [m - sta + 1, m] and the pre-window before it; re-summed once
+    // per pre-window so rounding cannot accumulate.
+    sta_sum += e;
+    if (m >= sta_d) {
+      const double moved = eh[(m - sta_d) & mask];
+      sta_sum -= moved;
+      pre_sum += moved;
+      if (m >= full_d) pre_sum -= eh[(m - full_d) & mask];
+    }
+    if (--resum_left_ == 0) {
+      resum_left_ = pre_d_;
+      sta_sum = pre_sum = 0.0;
+      const std::uint64_t have = m + 1;
+      for (std::uint64_t k = 0; k < std::min<std::uint64_t>(sta_d, have); ++k) sta_sum += eh[(m - k) & mask];
+      for (std::uint64_t k = sta_d; k < std::min<std::uint64_t>(full_d, have); ++k) pre_sum += eh[(m - k) & mask];
+    }
+    // LTA: cumulative mean at first, then the capped exponential mean; frozen around triggers. The
+    // fill-up samples before the warm-up are divided by a tiny g and are unreliable; since the capped
+    // mean may grow by at most (1 + 2/n) per sample, a start far too low would take ~100 ms to recover
+    // and leave only PRE as the reference. So at the end of the warm-up the LTA is raised to the
+    // white-noise band power measured by the spike stage (see white_band_power()), or, when that scale
+    // is not ready yet (it needs kMadWarmup samples: at 8 kHz with D = 1 the warm-up ends after ~24),
+    // at the first band sample after the warm-up where it is. Once per segment.
+    if (!lta_raised_ && m + 1 >= warmup_d_ && mad_count_ >= kMadWarmup) {
+      lta = std::max(lta, kCapBias * white_band_power());
+      lta_raised_ = true;
+    }
+    if (m >= lta_frozen_until_) {
+      ++lta_count_;
+      if (lta_count_ > lta_d_) {
+        // = lta + alpha (min(e, 3 lta) - lta), arranged so that the dependency chain through lta is
+        // short (alpha e off the chain).
+        lta = keep * lta + std::min(alpha * e, cap_alpha * lta);
+      } else if (lta_count_ <= sta_d) {
+        lta += (e - lta) / static_cast<double>(lta_count_);
+      } else {
+        lta += (std::min(e, kCap * lta) - lta) / static_cast<double>(lta_count_);
+      }
+    }
+    if (m + 1 < warmup_d_) continue;  // STA not yet full, or the chain has not filled enough
+    if (!confirming_ && !startup_ && m >= holdoff_end_ && m >= full_d) {
+      // Armed, past the start-up and with full windows (the common case): the trigger test of
+      // decide_band_sample(), which runs only when it fires.
+      const double sta = std::max(sta_sum, 0.0) * inv_sta_d_;
+      const double pre = std::max(pre_sum, 0.0) * inv_pre_d_;
+      const double ref = std::max({lta * (1.0 / kCapBias), pre, 1e-30});
+      if (!(sta > ratio_ * ref)) continue;
+    }
+    band_count_ = m + 1;
+    sta_sum_ = sta_sum;
+    pre_sum_ = pre_sum;
+    lta_ = lta;
+    decide_band_sample(m, e);
   }
+  band_count_ = m;
+  sta_sum_ = sta_sum;
+  pre_sum_ = pre_sum;
+  lta_ = lta;
+  phasor_ = {ph_re, ph_im};
+  lp_i_.s1.s1 = s1_1[0];
+  lp_q_.s1.s1 = s1_1[1];
+  lp_i_.s1.s2 = s2_1[0];
+  lp_q_.s1.s2 = s2_1[1];
+  lp_i_.s2.s1 = s1_2[0];
+  lp_q_.s2.s1 = s1_2[1];
+  lp_i_.s2.s2 = s2_2[0];
+  lp_q_.s2.s2 = s2_2[1];
 }
 
 void ImpactDetector::process_block() {
@@ -438,7 +605,7 @@ void ImpactDetector::process_block() {
   band_blocks(b, blk_ / dec_);
   next_block_ += blk_;
   due_p_ += blk_;
-  if (due_p_ > buf_x_.data() + buf_x_.size()) shift_buffer();
+  if (due_p_ + kReadAhead > buf_x_.data() + buf_x_.size()) shift_buffer();
 }
 
 void ImpactDetector::finish() {
@@ -452,7 +619,7 @@ void ImpactDetector::finish() {
     band_blocks(b, len / dec_);
     next_block_ += len;
     due_p_ += len;
-    if (due_p_ > buf_x_.data() + buf_x_.size()) shift_buffer();  // in case pushing goes on
+    if (due_p_ + kReadAhead > buf_x_.data() + buf_x_.size()) shift_buffer();  // in case pushing goes on
   }
   if (confirming_) {
     // The stream ended during confirmation or settling: judge with the energy seen so far.
@@ -467,56 +634,9 @@ std::uint64_t ImpactDetector::dec_end_index(double m) const {
   return seg_start_ + static_cast<std::uint64_t>(std::llround((m + 1.0) * static_cast<double>(dec_) - 1.0));
 }
 
-void ImpactDetector::band_sample(std::complex<double> z) {
-  const std::uint64_t m = band_count_;
-  const double i_part = lp_i_.step(z.real());
-  const double q_part = lp_q_.step(z.imag());
-  double e = i_part * i_part + q_part * q_part;
-  // While the chain fills up after a (re)start, stationary input gives E[e] = E_inf g(m): divide by g
-  // so the start of a record is not a rising edge.
-  if (m < fill_.size()) e /= fill_[static_cast<std::size_t>(m)];
-  e_hist_[m & e_mask_] = e;
-  ++band_count_;
-  // Running sums of the STA window [m - sta + 1, m] and the pre-window before it; re-summed once
-  // per pre-window so rounding cannot accumulate.
-  sta_sum_ += e;
-  if (band_count_ > sta_d_) {
-    const double moved = e_hist_[(m - sta_d_) & e_mask_];
-    sta_sum_ -= moved;
-    pre_sum_ += moved;
-    if (band_count_ > sta_d_ + pre_d_) pre_sum_ -= e_hist_[(m - sta_d_ - pre_d_) & e_mask_];
-  }
-  if (--resum_left_ == 0) {
-    resum_left_ = pre_d_;
-    sta_sum_ = pre_sum_ = 0.0;
-    const std::uint64_t have = band_count_;
-    for (std::uint64_t k = 0; k < std::min<std::uint64_t>(sta_d_, have); ++k) sta_sum_ += e_hist_[(m - k) & e_mask_];
-    for (std::uint64_t k = sta_d_; k < std::min<std::uint64_t>(sta_d_ + pre_d_, have); ++k) pre_sum_ += e_hist_[(m - k) & e_mask_];
-  }
-  // LTA: cumulative mean at first, then the capped exponential mean; frozen around triggers. The
-  // fill-up samples before the warm-up are divided by a tiny g and are unreliable; since the capped
-  // mean may grow by at most (1 + 2/n) per sample, a start far too low would take ~100 ms to recover
-  // and leave only PRE as the reference. So at the end of the warm-up the LTA is raised to the
-  // white-noise band power measured by the spike stage (see white_band_power()), or, when that scale
-  // is not ready yet (it needs kMadWarmup samples: at 8 kHz with D = 1 the warm-up ends after ~24),
-  // at the first band sample after the warm-up where it is. Once per segment.
-  if (!lta_raised_ && m + 1 >= warmup_d_ && mad_count_ >= kMadWarmup) {
-    lta_ = std::max(lta_, kCapBias * white_band_power());
-    lta_raised_ = true;
-  }
-  if (m >= lta_frozen_until_) {
-    ++lta_count_;
-    if (lta_count_ <= sta_d_) {
-      lta_ += (e - lta_) / static_cast<double>(lta_count_);
-    } else if (lta_count_ <= lta_d_) {
-      lta_ += (std::min(e, kCap * lta_) - lta_) / static_cast<double>(lta_count_);
-    } else {
-      // = lta + alpha (min(e, 3 lta) - lta), arranged so that the dependency chain through lta_ is
-      // short (alpha e off the chain).
-      lta_ = lta_keep_ * lta_ + std::min(lta_alpha_ * e, lta_cap_alpha_ * lta_);
-    }
-  }
-  if (band_count_ < warmup_d_) return;  // STA not yet full, or the chain has not filled enough
+void ImpactDetector::decide_band_sample(std::uint64_t m, double e) {
+  // Trigger logic for band sample m (energy e), after band_blocks() has stored it and updated the sums
+  // and the LTA (band_count_ == m + 1).
   const double sta = std::max(sta_sum_, 0.0) * inv_sta_d_;
 
   if (confirming_) {
@@ -539,9 +659,15 @@ void ImpactDetector::band_sample(std::complex<double> z) {
       // implies lies the model's peak time + 1 ms back, or at the latest cap_d_ after the trigger.
       bool done = m - peak_since_ >= hold_d_ || m - trigger_ >= cap_d_;
       if (!done) {
-        double onset_d = 0.0;
-        onset_estimate(trigger_, peak_at_, &onset_d);
-        done = static_cast<double>(dec_end_index(static_cast<double>(m))) >= onset_d + peak_samples_ + 0.001 * fs_;
+        // The onset implied by the running maximum depends only on it and the search floor:
+        // estimated again only when one of them has changed.
+        const std::uint64_t floor_k = search_floor(trigger_);
+        if (peak_at_ != est_peak_ || floor_k != est_floor_) {
+          onset_estimate(trigger_, peak_at_, &est_onset_d_);
+          est_peak_ = peak_at_;
+          est_floor_ = floor_k;
+        }
+        done = static_cast<double>(dec_end_index(static_cast<double>(m))) >= est_onset_d_ + peak_samples_ + 0.001 * fs_;
       }
       if (done) {
         confirming_ = false;
@@ -573,6 +699,7 @@ void ImpactDetector::band_sample(std::complex<double> z) {
     trigger_ = m;
     peak_at_ = m;
     peak_since_ = m;
+    est_peak_ = kNoPeak;
     trigger_ref_ = ref;
     confirm_sum_ = 0.0;
     confirm_seen_ = 0;
@@ -590,12 +717,16 @@ double ImpactDetector::white_band_power() const {
   return sd_r * sd_r / (1.0 + 34.0 / 36.0) * band_noise_gain_;
 }
 
+std::uint64_t ImpactDetector::search_floor(std::uint64_t trigger) const {
+  const std::uint64_t oldest = band_count_ > e_hist_.size() ? band_count_ - e_hist_.size() + 1 : 0;
+  return std::max(oldest, trigger > search_back_d_ ? trigger - search_back_d_ : 0);
+}
+
 std::uint64_t ImpactDetector::onset_estimate(std::uint64_t trigger, std::uint64_t k_peak, double* onset_d) const {
   // The last crossing of half the envelope maximum before it (not further back than the search
   // window), in fractional band samples, minus the model's 50 % rise time.
-  const std::uint64_t oldest = band_count_ > e_hist_.size() ? band_count_ - e_hist_.size() + 1 : 0;
   const double half = 0.5 * std::sqrt(e_hist_[k_peak & e_mask_]);
-  const std::uint64_t floor_k = std::max(oldest, trigger > search_back_d_ ? trigger - search_back_d_ : 0);
+  const std::uint64_t floor_k = search_floor(trigger);
   double crossing = static_cast<double>(floor_k);
   for (std::uint64_t k = k_peak; k > floor_k; --k) {
     const double lo = std::sqrt(e_hist_[(k - 1) & e_mask_]);

@@ -211,6 +211,10 @@ class ImpactDetector {
   static constexpr double kCapBias = 0.857;  // E min(z^2, 3) for z ~ N(0, 1)
   static constexpr double kCap = 3.0;
   static constexpr std::size_t kSpikeDelay = 4;
+  // decide_block() reads up to 2 samples and writes residuals up to the position of the sample that
+  // completes a block (its vectors of four run past the block): the buffer is shifted when fewer than
+  // this many slots follow that position.
+  static constexpr std::size_t kReadAhead = 4;
   static constexpr std::size_t kMaxOnsets = 16;
   static constexpr std::size_t kSpikeRing = 256;
   static constexpr std::uint64_t kMadWarmup = 32;
@@ -221,9 +225,10 @@ class ImpactDetector {
   void decide_block(std::uint64_t b, std::size_t len, std::size_t n_res, bool test_spikes);
   void band_blocks(std::uint64_t b, std::size_t count);
   void spike_test(std::uint64_t n, double t_mad);
-  void band_sample(std::complex<double> z);
+  void decide_band_sample(std::uint64_t m, double e);
   void refine_and_emit(std::uint64_t trigger, std::uint64_t end);
   std::uint64_t onset_estimate(std::uint64_t trigger, std::uint64_t k_peak, double* onset_d) const;
+  std::uint64_t search_floor(std::uint64_t trigger) const;  // oldest band sample the onset search reads
   std::uint64_t dec_end_index(double m) const;  // absolute input index of decimated sample m's end
   void calibrate(double fc_hz);
   void run_chain(const std::vector<double>& x, std::vector<std::complex<double>>& y) const;
@@ -281,6 +286,9 @@ class ImpactDetector {
   std::uint64_t holdoff_end_ = 0, lta_frozen_until_ = 0;
   bool confirming_ = false;
   std::uint64_t trigger_ = 0, peak_at_ = 0, peak_since_ = 0;
+  static constexpr std::uint64_t kNoPeak = ~std::uint64_t{0};
+  std::uint64_t est_peak_ = kNoPeak, est_floor_ = 0;  // running maximum and search floor of est_onset_d_
+  double est_onset_d_ = 0;
   double trigger_ref_ = 0, confirm_sum_ = 0;
   std::size_t confirm_seen_ = 0;
   bool confirmed_ = false;
