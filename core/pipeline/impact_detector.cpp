@@ -599,6 +599,26 @@ void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
   lp_q_.s2.s2 = s2_2[1];
 }
 
+void ImpactDetector::push(std::span<const float> xs) {
+  const float* p = xs.data();
+  std::size_t n = xs.size();
+  while (n > 0) {
+    const std::size_t k = std::min(n, until_block());
+    // A run is short (at most a block and the spike delay): copied inline, four at a time (a
+    // memcpy call costs more than the copy).
+    std::size_t i = 0;
+    for (; i + 4 <= k; i += 4) {
+      const F4 v = load4(p + i);
+      std::memcpy(wp_ + i, &v, sizeof v);
+    }
+    for (; i < k; ++i) wp_[i] = p[i];
+    wp_ += k;
+    p += k;
+    n -= k;
+    if (wp_ == due_p_) process_block();
+  }
+}
+
 void ImpactDetector::process_block() {
   const std::uint64_t b = next_block_;
   decide_block(b, blk_, blk_, true);

@@ -156,10 +156,12 @@ class ImpactDetector {
     *wp_ = x;
     if (++wp_ == due_p_) process_block();
   }
-  /// Feeds consecutive samples (same result as pushing them one by one).
-  void push(std::span<const float> xs) {
-    for (const float x : xs) push(x);
-  }
+  /// Feeds consecutive samples (same result as pushing them one by one): copied in runs up to the
+  /// next block.
+  void push(std::span<const float> xs);
+  /// Samples to push until the next block runs (>= 1). Onsets are reported only by the push that
+  /// completes a block, so a caller may push that many samples at once and then check has_onset().
+  std::size_t until_block() const { return static_cast<std::size_t>(due_p_ - wp_); }
   /// End of the segment: decides the delayed samples and resolves a trigger under confirmation with
   /// what has been seen.
   void finish();

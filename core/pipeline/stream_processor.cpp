@@ -272,9 +272,15 @@ void StreamProcessor::process(std::span<const float> block, std::uint64_t first_
               block.begin() + static_cast<std::ptrdiff_t>(begin + first), im.raw.begin() + static_cast<std::ptrdiff_t>(slot));
     std::copy(block.begin() + static_cast<std::ptrdiff_t>(begin + first),
               block.begin() + static_cast<std::ptrdiff_t>(begin + len), im.raw.begin());
-    for (std::size_t i = begin; i < begin + len; ++i) {
-      im.detector.push(block[i]);
-      ++im.next;
+    // The detector in runs that end where something can happen: where its next block runs (only that
+    // push can report onsets) or where the front window becomes ready (next == ready_at; analyze_ready()
+    // leaves ready_at > next). Same order of events as one sample at a time.
+    for (std::size_t i = begin; i < begin + len;) {
+      std::size_t n = std::min(begin + len - i, im.detector.until_block());
+      n = im.ready_at > im.next ? static_cast<std::size_t>(std::min<std::uint64_t>(n, im.ready_at - im.next)) : 1;
+      im.detector.push(block.subspan(i, n));
+      i += n;
+      im.next += n;
       if (im.detector.has_onset()) {
         im.take_onsets(events);
         im.ready_at = 0;  // re-evaluate the queue below
