@@ -5,7 +5,7 @@
 // An impact's window [onset - pretrigger, onset + window) is analysed as soon as it is final: when
 // the next onset is known and cuts it, or when enough samples past its end have arrived that no
 // later trigger can be refined to an onset inside it (the detector's report_delay_samples():
-// look-back plus decision delay, 9.7-9.8 ms at the defaults). That is the event latency after the end of the decay window.
+// look-back plus decision delay, 10.9-11.0 ms at the defaults). That is the event latency after the end of the decay window.
 #include "core/pipeline/stream_processor.hpp"
 
 #include <algorithm>
