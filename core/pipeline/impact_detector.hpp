@@ -10,9 +10,10 @@
 // the run only delays the decisions). Blocks and runs are aligned to the segment start, so the output
 // does not depend on how the caller splits the stream (bit-identical for any push pattern; tested).
 // All state is preallocated; push() never allocates (tested). Measured (bench/bench_pipeline
-// BM_DetectorOnly, detector alone, 51.2 kHz, one push per sample): ~2.7 ns per sample (1.6 ms runs;
-// 3.4 ns with one block per run, ~4 ns before the vectorised kernels of band_blocks() and
-// decide_blocks()), against 13 ns for the former per-sample chain.
+// BM_DetectorOnly, detector alone, 51.2 kHz, one push per sample): ~2.7 ns per sample, ~3.5 ns with
+// one block per run (longer runs: no measurable gain at 2 ms, ~5 % at 3.2 ms, not worth their
+// delay); 4 ns before the vectorised kernels of decide_blocks() and band_blocks(), 13 ns for the
+// former per-sample chain.
 //
 //  1. Spikes (isolated outliers). Residual of the 4-neighbour cubic interpolation
 //        r[n] = x[n] - (-x[n-2] + 4 x[n-1] + 4 x[n+1] - x[n+2]) / 6,
@@ -100,8 +101,9 @@
 //     final: when it has not grown for 1 ms, or when the onset it implies lies the model's peak time +
 //     1 ms in the past; never before the confirmation. Worst-case delay from an onset to its report:
 //     report_delay_samples(), 10.9-11.0 ms at the defaults (9.7-9.8 ms with 0.4 ms runs; the
-//     per-sample design waited 13.9 ms); measured up to 8.5 ms. Measured onsets on the simulated rig: within 0.1-0.2 ms of the start of
-//     the 0.15 ms force pulse (up to 0.34 ms for an impact on the start-up ring).
+//     per-sample design waited 13.9 ms); measured up to 8.5 ms. Measured onsets on the simulated
+//     rig: within 0.1-0.2 ms of the start of the 0.15 ms force pulse (up to 0.34 ms for an impact on
+//     the start-up ring).
 #pragma once
 
 #include <array>

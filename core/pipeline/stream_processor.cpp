@@ -1,11 +1,14 @@
 // StreamProcessor: glue between the sample stream, the impact detector, the impact analyzer and the
-// trend monitor. Every sample goes through the same per-sample path, so the events do not depend on
-// how the stream is cut into blocks (bit-identical for any block size; tested).
+// trend monitor. Samples reach the detector in runs that end exactly where something can happen (the
+// detector's next processing run, the next window becoming final), so the events and their order are
+// those of one sample at a time and do not depend on how the stream is cut into blocks
+// (bit-identical for any block size; tested).
 //
 // An impact's window [onset - pretrigger, onset + window) is analysed as soon as it is final: when
 // the next onset is known and cuts it, or when enough samples past its end have arrived that no
 // later trigger can be refined to an onset inside it (the detector's report_delay_samples():
-// look-back plus decision delay, 10.9-11.0 ms at the defaults). That is the event latency after the end of the decay window.
+// look-back plus decision delay, 10.9-11.0 ms at the defaults). That is the event latency after the
+// end of the decay window.
 #include "core/pipeline/stream_processor.hpp"
 
 #include <algorithm>
