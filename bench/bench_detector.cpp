@@ -1,8 +1,10 @@
 // ImpactDetector alone (core/pipeline/impact_detector.hpp) over 10 s of the simulated paper rig (noise
 // 1 %, 250 impacts) at 25.6 and 51.2 kHz: samples pushed one by one (as StreamProcessor does) or as
 // spans of 4096. Counter ns_per_sample uses the benchmark's CPU time (the library prints inverted
-// rates with an "s" suffix: "3.9s" reads 3.9 ns per sample); the budget at 51.2 kHz is
-// <= ~4 ns/sample for the detector (<= 2 ms per 10 s of stream).
+// rates with an "s" suffix: "2.7s" reads 2.7 ns per sample); the budget at 51.2 kHz is <= 2.5 ns/sample
+// for the detector (<= 1.3 ms per 10 s of stream: the daemon's 2000x real time on one core). Spans
+// are copied in runs up to the next processing run (ImpactDetector::push(span)), as StreamProcessor
+// feeds the detector.
 //   ./build-bench/bench/bench_detector --benchmark_counters_tabular=true
 #include <benchmark/benchmark.h>
 

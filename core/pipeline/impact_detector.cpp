@@ -4,6 +4,7 @@
 #include <bit>
 #include <cmath>
 #include <numbers>
+#include <stdexcept>
 
 #include "core/pipeline/stream_processor.hpp"
 
@@ -33,47 +34,102 @@ Biquad make_biquad(double f_hz, double q, double fs, bool high) {
 
 constexpr double kSixth = 1.0 / 6.0;
 
-// Dot product of FIR taps with samples (float, see the header: stage 2a), n a multiple of 4; four
-// partial sums so that the compiler can keep them in one vector register (a single running sum is a
-// serial dependency chain).
-inline double dot4(const float* x, const float* g, std::size_t n) {
-  float a0 = 0, a1 = 0, a2 = 0, a3 = 0;
-  for (std::size_t k = 0; k < n; k += 4) {
-    a0 += g[k] * x[k];
-    a1 += g[k + 1] * x[k + 1];
-    a2 += g[k + 2] * x[k + 2];
-    a3 += g[k + 3] * x[k + 3];
-  }
-  return static_cast<double>((a0 + a1) + (a2 + a3));
-}
+// Four floats in one register (SSE2 on x86-64, NEON on AArch64), with GCC/Clang vector extensions:
+// the four partial sums below are four independent lanes. Written as plain loops over four scalar
+// partial sums, GCC 12 vectorises across the groups of four instead and then adds the lanes in order,
+// one scalar add per element (the sums must keep their order: float addition is not associative and
+// the results are bit-identical to the scalar definition). Lane j of a sum holds the elements
+// k = j (mod 4) in order; the lanes are combined as (s0 + s1) + (s2 + s3).
+using F4 = float __attribute__((vector_size(16)));
+using I4 = std::int32_t __attribute__((vector_size(16)));
+using V2d = double __attribute__((vector_size(16)));  // I and Q lanes of the trigger band's low-pass
 
+// Unaligned loads and stores of four floats. Through a vector type of float (an access of the element
+// type for the compiler's alias analysis; memcpy would count as a store that may alias anything and
+// make the compiler reload members after it).
+using F4u = float __attribute__((vector_size(16), aligned(4)));
+
+inline F4 load4(const float* p) { return *reinterpret_cast<const F4u*>(p); }
+inline void store4(float* p, F4 v) { *reinterpret_cast<F4u*>(p) = v; }
+
+inline float lanes_sum(F4 s) { return (s[0] + s[1]) + (s[2] + s[3]); }
+
+// Dot products of the samples with the real and imaginary FIR taps (float, see the header: stage 2a),
+// n a multiple of 4.
 inline void fir_dot(const float* x, const float* g_re, const float* g_im, std::size_t n, double& re, double& im) {
-  re = dot4(x, g_re, n);
-  im = dot4(x, g_im, n);
+  F4 a_re = {0, 0, 0, 0}, a_im = {0, 0, 0, 0};
+  for (std::size_t k = 0; k < n; k += 4) {
+    const F4 xv = load4(x + k);
+    a_re += load4(g_re + k) * xv;
+    a_im += load4(g_im + k) * xv;
+  }
+  re = static_cast<double>(lanes_sum(a_re));
+  im = static_cast<double>(lanes_sum(a_im));
 }
 
-// Sum of min(|r|, clip) and whether any |r| > above, with four partial sums and an integer flag so
-// that the loop vectorises (a single floating-point running sum is a serial dependency chain).
+// fir_dot() for count windows step samples apart (x: the first), with the NV tap vectors held in
+// registers; re[j], im[j] as floats (fir_dot() widens them to double).
+template <std::size_t NV>
+void fir_steps(const float* x, std::size_t step, std::size_t count, const float* g_re, const float* g_im, float* re,
+               float* im) {
+  F4 gr[NV], gi[NV];
+  for (std::size_t v = 0; v < NV; ++v) {
+    gr[v] = load4(g_re + 4 * v);
+    gi[v] = load4(g_im + 4 * v);
+  }
+  for (std::size_t j = 0; j < count; ++j, x += step) {
+    F4 a_re = {0, 0, 0, 0}, a_im = {0, 0, 0, 0};
+    for (std::size_t v = 0; v < NV; ++v) {
+      const F4 xv = load4(x + 4 * v);
+      a_re += gr[v] * xv;
+      a_im += gi[v] * xv;
+    }
+    re[j] = lanes_sum(a_re);
+    im[j] = lanes_sum(a_im);
+  }
+}
+
+void fir_steps_any(const float* x, std::size_t step, std::size_t count, const float* g_re, const float* g_im,
+                   std::size_t n_taps, float* re, float* im) {
+  switch (n_taps / 4) {
+    case 1: return fir_steps<1>(x, step, count, g_re, g_im, re, im);
+    case 2: return fir_steps<2>(x, step, count, g_re, g_im, re, im);
+    case 3: return fir_steps<3>(x, step, count, g_re, g_im, re, im);
+    case 4: return fir_steps<4>(x, step, count, g_re, g_im, re, im);
+    case 5: return fir_steps<5>(x, step, count, g_re, g_im, re, im);
+    case 6: return fir_steps<6>(x, step, count, g_re, g_im, re, im);
+    default:
+      for (std::size_t j = 0; j < count; ++j, x += step) {
+        double dr = 0.0, di = 0.0;
+        fir_dot(x, g_re, g_im, n_taps, dr, di);
+        re[j] = static_cast<float>(dr);  // exact: fir_dot widened a float
+        im[j] = static_cast<float>(di);
+      }
+  }
+}
+
+// Sum of min(|r|, clip) and whether any |r| > above (the remainder of n mod 4 goes to lane 0).
 inline bool clipped_sum_any_above(const float* r, std::size_t n, float clip, float above, double& sum) {
-  float s0 = 0, s1 = 0, s2 = 0, s3 = 0;
-  int any = 0;
+  const F4 vclip = {clip, clip, clip, clip}, vabove = {above, above, above, above};
+  constexpr std::int32_t kNoSign = 0x7fffffff;
+  const I4 no_sign = {kNoSign, kNoSign, kNoSign, kNoSign};
+  F4 s = {0, 0, 0, 0};
+  I4 any = {0, 0, 0, 0};
   std::size_t k = 0;
   for (; k + 4 <= n; k += 4) {
-    const float a0 = std::abs(r[k]), a1 = std::abs(r[k + 1]), a2 = std::abs(r[k + 2]), a3 = std::abs(r[k + 3]);
-    s0 += std::min(a0, clip);
-    s1 += std::min(a1, clip);
-    s2 += std::min(a2, clip);
-    s3 += std::min(a3, clip);
-    any |= static_cast<int>(a0 > above) | static_cast<int>(a1 > above) | static_cast<int>(a2 > above) |
-           static_cast<int>(a3 > above);
+    const F4 a = reinterpret_cast<F4>(reinterpret_cast<I4>(load4(r + k)) & no_sign);  // |r|
+    s += vclip < a ? vclip : a;  // std::min(a, clip)
+    any |= a > vabove;
   }
+  float s0 = s[0];
+  bool above_any = (any[0] | any[1] | any[2] | any[3]) != 0;
   for (; k < n; ++k) {
     const float a = std::abs(r[k]);
     s0 += std::min(a, clip);
-    any |= static_cast<int>(a > above);
+    above_any |= a > above;
   }
-  sum = static_cast<double>((s0 + s1) + (s2 + s3));
-  return any != 0;
+  sum = static_cast<double>((s0 + s[1]) + (s[2] + s[3]));
+  return above_any;
 }
 
 }  // namespace
@@ -114,11 +170,15 @@ ImpactDetector::ImpactDetector(const ImpactDetectorConfig& cfg, double fs, std::
   // Decimation: the decimated rate stays >= 40 B (20-fold oversampling of the envelope's 2B band).
   dec_ = std::clamp<std::size_t>(static_cast<std::size_t>(std::floor(fs / (40.0 * bw))), 1, 64);
   fs_d_ = fs / static_cast<double>(dec_);
-  // Spike stage and buffering work on blocks of whole decimation steps of about 0.4 ms (20 samples at
-  // 51.2 kHz: the per-call overhead is shared and the loops vectorise better; longer blocks add to the
-  // decision delay), one band sample per D samples inside.
+  // The spike stage works on blocks of whole decimation steps of about 0.4 ms (20 samples at 51.2 kHz),
+  // one band sample per D samples inside; its scale is updated once per block. Blocks are processed
+  // in runs of about 1.6 ms (4 blocks, 80 samples at 51.2 kHz: the per-call overhead is shared and the
+  // loops are longer; longer runs add to the decision delay).
   blk_ = dec_ * std::max<std::size_t>(1, static_cast<std::size_t>(std::floor(kBlockS * fs / static_cast<double>(dec_))));
   inv_blk_ = 1.0 / static_cast<double>(blk_);
+  subs_ = std::clamp<std::size_t>(static_cast<std::size_t>(std::floor(kRunS * fs / static_cast<double>(blk_))), 1,
+                                  kMaxRunBlocks);
+  run_ = subs_ * blk_;
   // Triangular anti-alias FIR (two boxcars of D, 2D - 1 taps, unit DC gain) on the demodulated signal;
   // with D = 1 a single unit tap. Stored oldest-sample first as h[k] e^{+i w k}, k = L - 1 - i.
   const std::size_t n_taps = 2 * dec_ - 1;
@@ -136,6 +196,9 @@ ImpactDetector::ImpactDetector(const ImpactDetectorConfig& cfg, double fs, std::
   rot_d_ = std::polar(1.0, -w * static_cast<double>(dec_));
   proto_.s1 = Biquad::lowpass(bw, 0.54119610014619698, fs_d_);  // 1 / (2 cos(pi/8))
   proto_.s2 = Biquad::lowpass(bw, 1.3065629648763766, fs_d_);   // 1 / (2 cos(3 pi/8))
+  // band_blocks() relies on b1 = 2 b0 and b2 = b0 exactly (see there).
+  for (const Biquad* c : {&proto_.s1, &proto_.s2})
+    if (c->b1 != 2.0 * c->b0 || c->b2 != c->b0) throw std::logic_error("ImpactDetector: low-pass numerator not (1, 2, 1) b0");
 
   sta_d_ = std::max<std::size_t>(1, static_cast<std::size_t>(std::llround(cfg.sta_s * fs_d_)));
   lta_d_ = std::max<std::size_t>(sta_d_ + 1, static_cast<std::size_t>(std::llround(cfg.lta_s * fs_d_)));
@@ -214,10 +277,10 @@ ImpactDetector::ImpactDetector(const ImpactDetectorConfig& cfg, double fs, std::
     // Bound on (report - onset) in input samples. The decision comes at the first band sample at or past
     // onset + peak + 1 ms (the provisional onset is the final one), or, for a weak impact triggered
     // near its peak, when the confirmation after a trigger at most lookback_ after the onset is
-    // complete; + one block (band-sample grid) and the spike delay before a block runs.
+    // complete; + one run (band-sample grid) and the spike delay before a run is processed.
     const double by_peak = peak_samples_ + 0.001 * fs;
     const double by_confirm = static_cast<double>(lookback_ + confirm_d_ * dec_);
-    report_delay_ = static_cast<std::size_t>(std::ceil(std::max(by_peak, by_confirm))) + blk_ + kSpikeDelay + 1;
+    report_delay_ = static_cast<std::size_t>(std::ceil(std::max(by_peak, by_confirm))) + run_ + kSpikeDelay + 1;
   }
 
   const std::size_t hist_d = (history_samples + lookback_ + report_delay_) / dec_ + pre_d_ + sta_d_ + 64;
@@ -225,11 +288,11 @@ ImpactDetector::ImpactDetector(const ImpactDetectorConfig& cfg, double fs, std::
   e_hist_.assign(esize, 0.0);
   e_mask_ = esize - 1;
   hist_ = taps_ + 8;
-  // Room for 64 blocks after the history, the block in progress with its spike delay, and slack for
-  // finish(): it decides up to blk_ + kSpikeDelay - 1 samples and clears the two residual slots past
-  // them (the last at the block pointer, which may sit at the buffer's end: the shift only runs when
-  // it is past it).
-  buf_x_.assign(hist_ + 64 * blk_ + blk_ + kSpikeDelay + 8 + kSpikeDelay + dec_ + 8, 0.0f);
+  // Room for 16 runs after the history, the run in progress with its spike delay, and slack: finish()
+  // decides up to run_ + kSpikeDelay - 1 samples and clears the two residual slots past them,
+  // decide_block() reads and writes a little past the run's last pushed sample; the buffer is shifted
+  // before the run's end pointer leaves fewer than kReadAhead slots after it.
+  buf_x_.assign(hist_ + 16 * run_ + run_ + kSpikeDelay + 8 + kSpikeDelay + kReadAhead + dec_ + 8, 0.0f);
   buf_r_.assign(buf_x_.size(), 0.0f);
   restart(0);
 }
@@ -256,7 +319,7 @@ void ImpactDetector::restart(std::uint64_t first_index) {
   std::fill(buf_x_.begin(), buf_x_.end(), 0.0f);
   std::fill(buf_r_.begin(), buf_r_.end(), 0.0f);
   wp_ = buf_x_.data() + hist_;
-  due_p_ = wp_ + blk_ + kSpikeDelay;
+  due_p_ = wp_ + run_ + kSpikeDelay;
   mad_sum_ = 0.0;
   mad_count_ = 0;
   lp_i_ = proto_;
@@ -333,7 +396,7 @@ void ImpactDetector::shift_buffer() {
             buf_r_.begin());
   base_ = new_base;
   wp_ = buf_x_.data() + count;
-  due_p_ = buf_x_.data() + (next_block_ + blk_ + kSpikeDelay - base_);
+  due_p_ = buf_x_.data() + (next_block_ + run_ + kSpikeDelay - base_);
 }
 
 void ImpactDetector::spike_test(std::uint64_t n, double t_mad) {
@@ -369,8 +432,15 @@ void ImpactDetector::decide_block(std::uint64_t b, std::size_t len, std::size_t 
   const std::size_t d = len;
   const float* x = buf_x_.data() + (b - base_);
   float* r = buf_r_.data() + (b - base_);
-  if (b == seg_start_) r[0] = r[1] = 0.0f;
   constexpr float kSixthF = 1.0f / 6.0f;
+  // Robust scale: MAD from the winsorised mean |r| (Gaussian: E|r| = 0.7979 sd, MAD = 0.6745 sd).
+  // The absolute floor keeps float32 rounding of an otherwise noise-free signal from looking noisy
+  // or, with digital silence, everything from looking like a spike.
+  const std::size_t first = b == seg_start_ ? 2 : 0;
+  const auto clip = static_cast<float>(3.0 * mad_sum_ + 1e-30);
+  const bool scan = test_spikes && mad_count_ >= kMadWarmup;
+  const double t_mad = spike_k_ * std::max(0.6745 / 0.7979 * mad_sum_, 1e-9);
+  if (b == seg_start_) r[0] = r[1] = 0.0f;
   {
     // Separate buffers: __restrict lets the loop vectorise without a run-time overlap check.
     const float* __restrict xs = x;
@@ -379,14 +449,7 @@ void ImpactDetector::decide_block(std::uint64_t b, std::size_t len, std::size_t 
       rs[i] = xs[i] - (-xs[i - 2] + 4.0f * xs[i - 1] + 4.0f * xs[i + 1] - xs[i + 2]) * kSixthF;
   }
   for (std::size_t i = 2 + n_res; i < d + 2; ++i) r[i] = 0.0f;  // end of segment: no right neighbours
-
-  // Robust scale: MAD from the winsorised mean |r| (Gaussian: E|r| = 0.7979 sd, MAD = 0.6745 sd).
-  // The absolute floor keeps float32 rounding of an otherwise noise-free signal from looking noisy
-  // or, with digital silence, everything from looking like a spike.
-  const std::size_t first = b == seg_start_ ? 2 : 0;
-  const auto clip = static_cast<float>(3.0 * mad_sum_ + 1e-30);
-  if (test_spikes && mad_count_ >= kMadWarmup) {
-    const double t_mad = spike_k_ * std::max(0.6745 / 0.7979 * mad_sum_, 1e-9);
+  if (scan) {
     // Vectorisable pre-test (and the scale update's clipped sum, valid when nothing is removed);
     // only a block with a candidate runs the sequential isolation test (a corrected neighbour can
     // become a candidate, so the scan re-reads r).
@@ -417,42 +480,273 @@ void ImpactDetector::decide_block(std::uint64_t b, std::size_t len, std::size_t 
   }
 }
 
+void ImpactDetector::decide_blocks(std::uint64_t b, std::size_t count) {
+  // count whole blocks from b whose spike delay has passed, one after the other (each block's scale
+  // update is seen by the next); the scale after each is kept for the band samples in it. A block
+  // with a warm scale, not at the segment start, first takes the fast path: residuals, their clipped
+  // sum and the candidate pre-test in one pass over vectors of four at [4i, 4i + 4) from the block
+  // start, the lanes of clipped_sum_any_above() (the same sums, bit for bit; the clipped sum reads the
+  // residuals from registers, not back from memory). The first vector keeps r[0], r[1] (from the
+  // previous block, possibly corrected by its spike test); the last one also writes up to two
+  // residuals past b + blk + 1 from samples not yet pushed, which the next block recomputes before
+  // anything reads them (the buffer has room). A block with a candidate is decided again by
+  // decide_block() (the same residuals, then the isolation test).
+  constexpr float kSixthF = 1.0f / 6.0f;
+  const F4 four = {4.0f, 4.0f, 4.0f, 4.0f}, sixth = {kSixthF, kSixthF, kSixthF, kSixthF};
+  constexpr std::int32_t kNoSign = 0x7fffffff;
+  const I4 no_sign = {kNoSign, kNoSign, kNoSign, kNoSign};
+  const std::size_t d = blk_, n_vec = (d + 2 + 3) / 4, n_sum = d / 4;
+  for (std::size_t k = 0; k < count; ++k) {
+    const std::uint64_t bk = b + k * d;
+    if (mad_count_ < kMadWarmup || bk == seg_start_) {
+      decide_block(bk, d, d, true);
+      note_scale(k);
+      continue;
+    }
+    const float* x = buf_x_.data() + (bk - base_);
+    float* r = buf_r_.data() + (bk - base_);
+    const auto clip = static_cast<float>(3.0 * mad_sum_ + 1e-30);  // as in decide_block()
+    const auto above = static_cast<float>(spike_k_ * std::max(0.6745 / 0.7979 * mad_sum_, 1e-9));
+    const F4 vclip = {clip, clip, clip, clip}, vabove = {above, above, above, above};
+    auto residuals = [&](std::size_t v) {
+      const float* xv = x + 4 * v;
+      return load4(xv) - (-load4(xv - 2) + four * load4(xv - 1) + four * load4(xv + 1) - load4(xv + 2)) * sixth;
+    };
+    F4 sum = {0, 0, 0, 0};
+    I4 any = {0, 0, 0, 0};
+    F4 rv = residuals(0);
+    rv[0] = r[0];
+    rv[1] = r[1];
+    store4(r, rv);
+    std::size_t v = 1;
+    for (; v <= n_sum; ++v) {
+      const F4 a = reinterpret_cast<F4>(reinterpret_cast<I4>(rv) & no_sign);  // |r| of vector v - 1
+      sum += vclip < a ? vclip : a;                                            // std::min(a, clip)
+      any |= a > vabove;
+      rv = residuals(v);
+      store4(r + 4 * v, rv);
+    }
+    for (; v < n_vec; ++v) {
+      rv = residuals(v);
+      store4(r + 4 * v, rv);
+    }
+    float s0 = sum[0];
+    bool candidate = (any[0] | any[1] | any[2] | any[3]) != 0;
+    for (std::size_t i = 4 * n_sum; i < d; ++i) {  // d mod 4 left: lane 0, in order
+      const float a = std::abs(r[i]);
+      s0 += std::min(a, clip);
+      candidate |= a > above;
+    }
+    if (candidate) {
+      decide_block(bk, d, d, true);
+    } else {
+      const auto sm = static_cast<double>((s0 + sum[1]) + (sum[2] + sum[3]));
+      mad_sum_ += mad_beta_ * (sm * inv_blk_ - mad_sum_);  // as in decide_block()
+    }
+    note_scale(k);
+  }
+}
+
 void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
   // Complex demodulation + anti-alias FIR + decimation: one band sample per D samples, at the last
-  // index of each.
-  for (std::size_t j = 0; j < count; ++j) {
-    double re = 0.0, im = 0.0;
-    fir_dot(buf_x_.data() + (b - base_) + (j + 1) * dec_ - taps_, g_re_.data(), g_im_.data(), taps_, re, im);
-    const std::complex<double> z = std::complex<double>(re, im) * phasor_;
-    // The phasor advances by e^{-i w D} per band sample; renormalised every 64 (Newton step on
-    // |p|^2 = 1) so rounding cannot make it drift.
-    phasor_ *= rot_d_;
-    if ((band_count_ & 63) == 0) phasor_ *= 0.5 * (3.0 - std::norm(phasor_));
-    band_sample(z);
+  // index of each; then the I/Q low-pass, the energy history, the STA/PRE sums and the LTA. The FIR
+  // outputs of up to 16 band samples are computed first in one pass (the taps stay in registers), the
+  // recursive part then runs over them. Its hot state lives in locals for the whole run (the stores
+  // into the energy history could otherwise alias the members, which the compiler would then reload
+  // for every band sample); the members are written back before the trigger logic runs. I and Q
+  // share the low-pass: one lane each of a two-double vector, with the arithmetic of Biquad::step per
+  // lane.
+  const float* x = buf_x_.data() + (b - base_) + dec_ - taps_;  // the first step's FIR window
+  const float* const g_re = g_re_.data();
+  const float* const g_im = g_im_.data();
+  const std::size_t taps = taps_;
+  const std::size_t per_block = blk_ / dec_;
+  double* const eh = e_hist_.data();
+  const std::uint64_t mask = e_mask_;
+  const std::uint64_t n_fill = fill_.size();
+  const std::uint64_t sta_d = sta_d_, full_d = sta_d_ + pre_d_;
+  const double rot_re = rot_d_.real(), rot_im = rot_d_.imag();
+  const double keep = lta_keep_, alpha = lta_alpha_, cap_alpha = lta_cap_alpha_;
+  auto splat = [](double v) { return V2d{v, v}; };
+  const Biquad& c1 = proto_.s1;
+  const Biquad& c2 = proto_.s2;
+  // Low-pass biquads: b1 = 2 b0 and b2 = b0 exactly (make_biquad: b0 = ((1 - c) / 2) / a0 is
+  // (1 - c) / a0 halved, binary scaling commutes with rounding), so b1 x = b0 x + b0 x and b2 x = b0 x,
+  // bit for bit: one product instead of three.
+  const V2d b0_1 = splat(c1.b0), a1_1 = splat(c1.a1), a2_1 = splat(c1.a2);
+  const V2d b0_2 = splat(c2.b0), a1_2 = splat(c2.a1), a2_2 = splat(c2.a2);
+  V2d s1_1 = {lp_i_.s1.s1, lp_q_.s1.s1}, s2_1 = {lp_i_.s1.s2, lp_q_.s1.s2};
+  V2d s1_2 = {lp_i_.s2.s1, lp_q_.s2.s1}, s2_2 = {lp_i_.s2.s2, lp_q_.s2.s2};
+  double ph_re = phasor_.real(), ph_im = phasor_.imag();
+  double sta_sum = sta_sum_, pre_sum = pre_sum_, lta = lta_;
+  std::uint64_t m = band_count_;
+  std::size_t sub = 0, sub_left = per_block;  // block of the run (its scale: scale_at_[sub])
+  std::size_t resum_left = resum_left_;
+  std::uint64_t lta_count = lta_count_;
+  constexpr std::size_t kChunk = 16;  // band samples whose FIR outputs are computed in one pass
+  float fir_re[kChunk], fir_im[kChunk];
+  for (std::size_t j0 = 0; j0 < count; j0 += kChunk) {
+    const std::size_t n_chunk = std::min(kChunk, count - j0);
+    fir_steps_any(x + j0 * dec_, dec_, n_chunk, g_re, g_im, taps, fir_re, fir_im);
+    for (std::size_t j = 0; j < n_chunk; ++j, ++m) {
+      if (sub_left == 0) {
+        ++sub;
+        sub_left = per_block;
+      }
+      --sub_left;
+      const auto re = static_cast<double>(fir_re[j]), im = static_cast<double>(fir_im[j]);
+      // z = (re + i im) e^{-i w j}; the phasor advances by e^{-i w D} per band sample, renormalised
+      // every 64 (Newton step on |p|^2 = 1) so rounding cannot make it drift. (Complex products
+      // written out: (a + ib)(c + id) = (ac - bd) + i(ad + bc).)
+      const V2d z = {re * ph_re - im * ph_im, re * ph_im + im * ph_re};
+      const double next_re = ph_re * rot_re - ph_im * rot_im;
+      ph_im = ph_re * rot_im + ph_im * rot_re;
+      ph_re = next_re;
+      if ((m & 63) == 0) {
+        const double g = 0.5 * (3.0 - (ph_re * ph_re + ph_im * ph_im));
+        ph_re *= g;
+        ph_im *= g;
+      }
+      // 4th-order low-pass on I and Q (Biquad::step, two stages).
+      const V2d bz_1 = b0_1 * z;
+      const V2d y1 = bz_1 + s1_1;
+      s1_1 = ((bz_1 + bz_1) + s2_1) - a1_1 * y1;
+      s2_1 = bz_1 - a2_1 * y1;
+      const V2d bz_2 = b0_2 * y1;
+      const V2d y = bz_2 + s1_2;
+      s1_2 = ((bz_2 + bz_2) + s2_2) - a1_2 * y;
+      s2_2 = bz_2 - a2_2 * y;
+      double e = y[0] * y[0] + y[1] * y[1];
+      // While the chain fills up after a (re)start, stationary input gives E[e] = E_inf g(m): divide by
+      // g so the start of a record is not a rising edge.
+      if (m < n_fill) e /= fill_[static_cast<std::size_t>(m)];
+      eh[m & mask] = e;
+      // Running sums of the STA window [m - sta + 1, m] and the pre-window before it; re-summed once
+      // per pre-window so rounding cannot accumulate.
+      sta_sum += e;
+      if (m >= sta_d) {
+        const double moved = eh[(m - sta_d) & mask];
+        sta_sum -= moved;
+        pre_sum += moved;
+        if (m >= full_d) pre_sum -= eh[(m - full_d) & mask];
+      }
+      if (--resum_left == 0) {
+        resum_left = pre_d_;
+        sta_sum = pre_sum = 0.0;
+        const std::uint64_t have = m + 1;
+        for (std::uint64_t k = 0; k < std::min<std::uint64_t>(sta_d, have); ++k) sta_sum += eh[(m - k) & mask];
+        for (std::uint64_t k = sta_d; k < std::min<std::uint64_t>(full_d, have); ++k) pre_sum += eh[(m - k) & mask];
+      }
+      // LTA: cumulative mean at first, then the capped exponential mean; frozen around triggers. The
+      // fill-up samples before the warm-up are divided by a tiny g and are unreliable; since the capped
+      // mean may grow by at most (1 + 2/n) per sample, a start far too low would take ~100 ms to recover
+      // and leave only PRE as the reference. So at the end of the warm-up the LTA is raised to the
+      // white-noise band power measured by the spike stage (see white_band_power()), or, when that scale
+      // is not ready yet (it needs kMadWarmup samples: at 8 kHz with D = 1 the warm-up ends after ~24),
+      // at the first band sample after the warm-up where it is. Once per segment.
+      if (!lta_raised_ && m + 1 >= warmup_d_ && scale_ready_[sub]) {
+        lta = std::max(lta, kCapBias * white_band_power(scale_at_[sub]));
+        lta_raised_ = true;
+      }
+      if (m >= lta_frozen_until_) {
+        ++lta_count;
+        if (lta_count > lta_d_) {
+          // = lta + alpha (min(e, 3 lta) - lta), arranged so that the dependency chain through lta is
+          // short (alpha e off the chain).
+          lta = keep * lta + std::min(alpha * e, cap_alpha * lta);
+        } else if (lta_count <= sta_d) {
+          lta += (e - lta) / static_cast<double>(lta_count);
+        } else {
+          lta += (std::min(e, kCap * lta) - lta) / static_cast<double>(lta_count);
+        }
+      }
+      if (m + 1 < warmup_d_) continue;  // STA not yet full, or the chain has not filled enough
+      if (!confirming_) {
+        if (m < holdoff_end_) continue;  // as in decide_band_sample()
+        if (!startup_ && m >= full_d) {
+          // Armed, past the start-up and with full windows (the common case): the trigger test of
+          // decide_band_sample(), which runs only when it fires.
+          const double sta = std::max(sta_sum, 0.0) * inv_sta_d_;
+          const double pre = std::max(pre_sum, 0.0) * inv_pre_d_;
+          const double ref = std::max({lta * (1.0 / kCapBias), pre, 1e-30});
+          if (!(sta > ratio_ * ref)) continue;
+        }
+      }
+      band_count_ = m + 1;
+      sta_sum_ = sta_sum;
+      pre_sum_ = pre_sum;
+      lta_ = lta;
+      decide_band_sample(m, e, scale_at_[sub]);
+    }
+  }
+  resum_left_ = resum_left;
+  lta_count_ = lta_count;
+  band_count_ = m;
+  sta_sum_ = sta_sum;
+  pre_sum_ = pre_sum;
+  lta_ = lta;
+  phasor_ = {ph_re, ph_im};
+  lp_i_.s1.s1 = s1_1[0];
+  lp_q_.s1.s1 = s1_1[1];
+  lp_i_.s1.s2 = s2_1[0];
+  lp_q_.s1.s2 = s2_1[1];
+  lp_i_.s2.s1 = s1_2[0];
+  lp_q_.s2.s1 = s1_2[1];
+  lp_i_.s2.s2 = s2_2[0];
+  lp_q_.s2.s2 = s2_2[1];
+}
+
+void ImpactDetector::push(std::span<const float> xs) {
+  const float* p = xs.data();
+  std::size_t n = xs.size();
+  while (n > 0) {
+    const std::size_t k = std::min(n, until_block());
+    // A run is short (at most a block and the spike delay): copied inline, four at a time (a
+    // memcpy call costs more than the copy).
+    std::size_t i = 0;
+    for (; i + 4 <= k; i += 4) {
+      store4(wp_ + i, load4(p + i));
+    }
+    for (; i < k; ++i) wp_[i] = p[i];
+    wp_ += k;
+    p += k;
+    n -= k;
+    if (wp_ == due_p_) process_block();
   }
 }
 
 void ImpactDetector::process_block() {
+  // One run: the spike stage block by block (each block's scale update is seen by the next, as if
+  // they ran one at a time), the scale after each block kept for the band samples in it, then the
+  // trigger band over the whole run.
   const std::uint64_t b = next_block_;
-  decide_block(b, blk_, blk_, true);
-  band_blocks(b, blk_ / dec_);
-  next_block_ += blk_;
-  due_p_ += blk_;
-  if (due_p_ > buf_x_.data() + buf_x_.size()) shift_buffer();
+  decide_blocks(b, subs_);
+  band_blocks(b, run_ / dec_);
+  next_block_ += run_;
+  due_p_ += run_;
+  if (due_p_ + kReadAhead > buf_x_.data() + buf_x_.size()) shift_buffer();
 }
 
 void ImpactDetector::finish() {
-  // The last whole decimation steps, whose right neighbours never came: no spike decisions in them.
+  // The run in progress: its whole blocks whose spike delay has passed as in process_block(), then
+  // the last whole decimation steps, whose right neighbours never came: no spike decisions in them.
   const auto avail = static_cast<std::size_t>(next_index() - next_block_);
-  const std::size_t len = avail / dec_ * dec_;
+  const std::uint64_t b = next_block_;
+  const std::size_t k = avail >= kSpikeDelay ? (avail - kSpikeDelay) / blk_ : 0;
+  decide_blocks(b, k);
+  const std::size_t rest = avail - k * blk_;
+  const std::size_t len = rest / dec_ * dec_;
   if (len > 0) {
-    const std::uint64_t b = next_block_;
-    const std::size_t n_res = avail >= len + 4 ? len : (avail > 4 ? avail - 4 : 0);  // r[i + 2] needs x[i + 4]
-    decide_block(b, len, n_res, false);
-    band_blocks(b, len / dec_);
-    next_block_ += len;
-    due_p_ += len;
-    if (due_p_ > buf_x_.data() + buf_x_.size()) shift_buffer();  // in case pushing goes on
+    const std::size_t n_res = rest >= len + 4 ? len : (rest > 4 ? rest - 4 : 0);  // r[i + 2] needs x[i + 4]
+    decide_block(b + k * blk_, len, n_res, false);
+    note_scale(k);
+  }
+  const std::size_t done = k * blk_ + len;
+  if (done > 0) {
+    band_blocks(b, done / dec_);
+    next_block_ += done;
+    due_p_ += done;
+    if (due_p_ + kReadAhead > buf_x_.data() + buf_x_.size()) shift_buffer();  // in case pushing goes on
   }
   if (confirming_) {
     // The stream ended during confirmation or settling: judge with the energy seen so far.
@@ -467,56 +761,9 @@ std::uint64_t ImpactDetector::dec_end_index(double m) const {
   return seg_start_ + static_cast<std::uint64_t>(std::llround((m + 1.0) * static_cast<double>(dec_) - 1.0));
 }
 
-void ImpactDetector::band_sample(std::complex<double> z) {
-  const std::uint64_t m = band_count_;
-  const double i_part = lp_i_.step(z.real());
-  const double q_part = lp_q_.step(z.imag());
-  double e = i_part * i_part + q_part * q_part;
-  // While the chain fills up after a (re)start, stationary input gives E[e] = E_inf g(m): divide by g
-  // so the start of a record is not a rising edge.
-  if (m < fill_.size()) e /= fill_[static_cast<std::size_t>(m)];
-  e_hist_[m & e_mask_] = e;
-  ++band_count_;
-  // Running sums of the STA window [m - sta + 1, m] and the pre-window before it; re-summed once
-  // per pre-window so rounding cannot accumulate.
-  sta_sum_ += e;
-  if (band_count_ > sta_d_) {
-    const double moved = e_hist_[(m - sta_d_) & e_mask_];
-    sta_sum_ -= moved;
-    pre_sum_ += moved;
-    if (band_count_ > sta_d_ + pre_d_) pre_sum_ -= e_hist_[(m - sta_d_ - pre_d_) & e_mask_];
-  }
-  if (--resum_left_ == 0) {
-    resum_left_ = pre_d_;
-    sta_sum_ = pre_sum_ = 0.0;
-    const std::uint64_t have = band_count_;
-    for (std::uint64_t k = 0; k < std::min<std::uint64_t>(sta_d_, have); ++k) sta_sum_ += e_hist_[(m - k) & e_mask_];
-    for (std::uint64_t k = sta_d_; k < std::min<std::uint64_t>(sta_d_ + pre_d_, have); ++k) pre_sum_ += e_hist_[(m - k) & e_mask_];
-  }
-  // LTA: cumulative mean at first, then the capped exponential mean; frozen around triggers. The
-  // fill-up samples before the warm-up are divided by a tiny g and are unreliable; since the capped
-  // mean may grow by at most (1 + 2/n) per sample, a start far too low would take ~100 ms to recover
-  // and leave only PRE as the reference. So at the end of the warm-up the LTA is raised to the
-  // white-noise band power measured by the spike stage (see white_band_power()), or, when that scale
-  // is not ready yet (it needs kMadWarmup samples: at 8 kHz with D = 1 the warm-up ends after ~24),
-  // at the first band sample after the warm-up where it is. Once per segment.
-  if (!lta_raised_ && m + 1 >= warmup_d_ && mad_count_ >= kMadWarmup) {
-    lta_ = std::max(lta_, kCapBias * white_band_power());
-    lta_raised_ = true;
-  }
-  if (m >= lta_frozen_until_) {
-    ++lta_count_;
-    if (lta_count_ <= sta_d_) {
-      lta_ += (e - lta_) / static_cast<double>(lta_count_);
-    } else if (lta_count_ <= lta_d_) {
-      lta_ += (std::min(e, kCap * lta_) - lta_) / static_cast<double>(lta_count_);
-    } else {
-      // = lta + alpha (min(e, 3 lta) - lta), arranged so that the dependency chain through lta_ is
-      // short (alpha e off the chain).
-      lta_ = lta_keep_ * lta_ + std::min(lta_alpha_ * e, lta_cap_alpha_ * lta_);
-    }
-  }
-  if (band_count_ < warmup_d_) return;  // STA not yet full, or the chain has not filled enough
+void ImpactDetector::decide_band_sample(std::uint64_t m, double e, double mad) {
+  // Trigger logic for band sample m (energy e), after band_blocks() has stored it and updated the sums
+  // and the LTA (band_count_ == m + 1); mad: the spike stage's scale as of m's block.
   const double sta = std::max(sta_sum_, 0.0) * inv_sta_d_;
 
   if (confirming_) {
@@ -539,9 +786,15 @@ void ImpactDetector::band_sample(std::complex<double> z) {
       // implies lies the model's peak time + 1 ms back, or at the latest cap_d_ after the trigger.
       bool done = m - peak_since_ >= hold_d_ || m - trigger_ >= cap_d_;
       if (!done) {
-        double onset_d = 0.0;
-        onset_estimate(trigger_, peak_at_, &onset_d);
-        done = static_cast<double>(dec_end_index(static_cast<double>(m))) >= onset_d + peak_samples_ + 0.001 * fs_;
+        // The onset implied by the running maximum depends only on it and the search floor:
+        // estimated again only when one of them has changed.
+        const std::uint64_t floor_k = search_floor(trigger_);
+        if (peak_at_ != est_peak_ || floor_k != est_floor_) {
+          onset_estimate(trigger_, peak_at_, &est_onset_d_);
+          est_peak_ = peak_at_;
+          est_floor_ = floor_k;
+        }
+        done = static_cast<double>(dec_end_index(static_cast<double>(m))) >= est_onset_d_ + peak_samples_ + 0.001 * fs_;
       }
       if (done) {
         confirming_ = false;
@@ -564,7 +817,7 @@ void ImpactDetector::band_sample(std::complex<double> z) {
     double lag = 0.0;
     for (std::size_t k = 0; k < lagw_d_; ++k) lag += e_hist_[(m - lag_d_ - k) & e_mask_];
     // Floored by the white-noise band power (the LTA may still be too low, see the LTA update).
-    rise_ref = std::min(pre, std::max(lag / static_cast<double>(lagw_d_) * lag_decay_, white_band_power()));
+    rise_ref = std::min(pre, std::max(lag / static_cast<double>(lagw_d_) * lag_decay_, white_band_power(mad)));
   }
   if (startup_ && m >= startup_end_d_) startup_ = false;
   const double ref = std::max({lta_ * (1.0 / kCapBias), rise_ref, 1e-30});
@@ -573,6 +826,7 @@ void ImpactDetector::band_sample(std::complex<double> z) {
     trigger_ = m;
     peak_at_ = m;
     peak_since_ = m;
+    est_peak_ = kNoPeak;
     trigger_ref_ = ref;
     confirm_sum_ = 0.0;
     confirm_seen_ = 0;
@@ -581,21 +835,30 @@ void ImpactDetector::band_sample(std::complex<double> z) {
   }
 }
 
-double ImpactDetector::white_band_power() const {
+void ImpactDetector::note_scale(std::size_t k) {
+  scale_at_[k] = mad_sum_;
+  scale_ready_[k] = mad_count_ >= kMadWarmup;
+}
+
+double ImpactDetector::white_band_power(double mad) const {
   // The band power of white noise with the variance the spike stage measures: the interpolation
-  // residual has variance (1 + 34/36) sigma^2 for white noise (stage 1), mad_sum_ is its mean
+  // residual has variance (1 + 34/36) sigma^2 for white noise (stage 1), mad (mad_sum_) is its mean
   // absolute value (0.7979 sd), and a start transient or a line in or near the band leaves almost no
   // residual (theta^4 / 6 of its amplitude).
-  const double sd_r = mad_sum_ / 0.7979;
+  const double sd_r = mad / 0.7979;
   return sd_r * sd_r / (1.0 + 34.0 / 36.0) * band_noise_gain_;
+}
+
+std::uint64_t ImpactDetector::search_floor(std::uint64_t trigger) const {
+  const std::uint64_t oldest = band_count_ > e_hist_.size() ? band_count_ - e_hist_.size() + 1 : 0;
+  return std::max(oldest, trigger > search_back_d_ ? trigger - search_back_d_ : 0);
 }
 
 std::uint64_t ImpactDetector::onset_estimate(std::uint64_t trigger, std::uint64_t k_peak, double* onset_d) const {
   // The last crossing of half the envelope maximum before it (not further back than the search
   // window), in fractional band samples, minus the model's 50 % rise time.
-  const std::uint64_t oldest = band_count_ > e_hist_.size() ? band_count_ - e_hist_.size() + 1 : 0;
   const double half = 0.5 * std::sqrt(e_hist_[k_peak & e_mask_]);
-  const std::uint64_t floor_k = std::max(oldest, trigger > search_back_d_ ? trigger - search_back_d_ : 0);
+  const std::uint64_t floor_k = search_floor(trigger);
   double crossing = static_cast<double>(floor_k);
   for (std::uint64_t k = k_peak; k > floor_k; --k) {
     const double lo = std::sqrt(e_hist_[(k - 1) & e_mask_]);

@@ -2,12 +2,18 @@
 // narrow-band envelope energy STA/LTA with a "rise" reference and hold-off -> confirmation -> onset
 // refinement (50 % crossing of the envelope, calibrated on a model decay).
 //
-// Blocks: push() only stores a sample; every ~0.4 ms (a whole number of decimation steps D, 20 samples
-// at 51.2 kHz and the default 250 Hz wide band) one block runs stages 1-2 on its samples and stages
-// 3-5 on its band samples. Blocks are aligned to the segment start, so the output does not depend on
-// how the caller splits the stream (bit-identical for any push pattern; tested). All state is
-// preallocated; push() never allocates (tested). Measured (bench/bench_pipeline, detector alone,
-// 51.2 kHz): ~4 ns per sample, against 13 ns for the former per-sample chain.
+// Blocks and runs: push() only stores a sample. The spike stage works on blocks of ~0.4 ms (a whole
+// number of decimation steps D, 20 samples at 51.2 kHz and the default 250 Hz wide band), and its
+// scale is updated once per block; blocks are processed in runs of ~1.6 ms (4 blocks, 80 samples):
+// every run, stage 1 runs on its blocks one after the other, then stages 2-5 on the run's band
+// samples (each band sample sees the scale as of its own block, as if the blocks ran one at a time;
+// the run only delays the decisions). Blocks and runs are aligned to the segment start, so the output
+// does not depend on how the caller splits the stream (bit-identical for any push pattern; tested).
+// All state is preallocated; push() never allocates (tested). Measured (bench/bench_pipeline
+// BM_DetectorOnly, detector alone, 51.2 kHz, one push per sample): ~2.7 ns per sample, ~3.5 ns with
+// one block per run (longer runs: no measurable gain at 2 ms, ~5 % at 3.2 ms, not worth their
+// delay); 4 ns before the vectorised kernels of decide_blocks() and band_blocks(), 13 ns for the
+// former per-sample chain.
 //
 //  1. Spikes (isolated outliers). Residual of the 4-neighbour cubic interpolation
 //        r[n] = x[n] - (-x[n-2] + 4 x[n-1] + 4 x[n+1] - x[n+2]) / 6,
@@ -94,9 +100,10 @@
 //     destructively with its first cycles.) The onset is decided as soon as the running maximum is
 //     final: when it has not grown for 1 ms, or when the onset it implies lies the model's peak time +
 //     1 ms in the past; never before the confirmation. Worst-case delay from an onset to its report:
-//     report_delay_samples(), 9.7-9.8 ms at the defaults (the per-sample design waited 13.9 ms);
-//     measured up to 7.8 ms. Measured onsets on the simulated rig: within 0.1-0.2 ms of the start of
-//     the 0.15 ms force pulse (up to 0.34 ms for an impact on the start-up ring).
+//     report_delay_samples(), 10.9-11.0 ms at the defaults (9.7-9.8 ms with 0.4 ms runs; the
+//     per-sample design waited 13.9 ms); measured up to 8.5 ms. Measured onsets on the simulated
+//     rig: within 0.1-0.2 ms of the start of the 0.15 ms force pulse (up to 0.34 ms for an impact on
+//     the start-up ring).
 #pragma once
 
 #include <array>
@@ -156,10 +163,12 @@ class ImpactDetector {
     *wp_ = x;
     if (++wp_ == due_p_) process_block();
   }
-  /// Feeds consecutive samples (same result as pushing them one by one).
-  void push(std::span<const float> xs) {
-    for (const float x : xs) push(x);
-  }
+  /// Feeds consecutive samples (same result as pushing them one by one): copied in runs up to the
+  /// next block.
+  void push(std::span<const float> xs);
+  /// Samples to push until the next block runs (>= 1). Onsets are reported only by the push that
+  /// completes a block, so a caller may push that many samples at once and then check has_onset().
+  std::size_t until_block() const { return static_cast<std::size_t>(due_p_ - wp_); }
   /// End of the segment: decides the delayed samples and resolves a trigger under confirmation with
   /// what has been seen.
   void finish();
@@ -194,11 +203,11 @@ class ImpactDetector {
   /// long after a sample knows every onset at or before it.
   std::size_t decision_delay_samples() const { return report_delay_ - lookback_; }
   /// Worst-case delay from an onset to its report, in samples (= lookback + decision delay):
-  /// max(model peak time + 1 ms, look-back + confirmation) + one block + the spike delay. 9.7-9.8 ms
+  /// max(model peak time + 1 ms, look-back + confirmation) + one run + the spike delay. 10.9-11.0 ms
   /// at the defaults (25.6 and 51.2 kHz); tested by feeding impacts and counting samples.
   std::size_t report_delay_samples() const { return report_delay_; }
 
-  /// Decimation factor D (input samples per block and per trigger-band sample).
+  /// Decimation factor D (input samples per trigger-band sample; blocks are whole multiples of it).
   std::size_t decimation() const { return dec_; }
   /// Model: 50 % rise time of the envelope after an onset, and its spread (max - min) over the D
   /// positions of the onset relative to the block grid, in input samples.
@@ -211,32 +220,42 @@ class ImpactDetector {
   static constexpr double kCapBias = 0.857;  // E min(z^2, 3) for z ~ N(0, 1)
   static constexpr double kCap = 3.0;
   static constexpr std::size_t kSpikeDelay = 4;
+  // decide_block() reads up to 2 samples and writes residuals up to the position of the sample that
+  // completes a block (its vectors of four run past the block): the buffer is shifted when fewer than
+  // this many slots follow that position.
+  static constexpr std::size_t kReadAhead = 4;
   static constexpr std::size_t kMaxOnsets = 16;
   static constexpr std::size_t kSpikeRing = 256;
   static constexpr std::uint64_t kMadWarmup = 32;
-  static constexpr double kBlockS = 0.0004;  // processing block length, s (whole decimation steps)
+  static constexpr double kBlockS = 0.0004;  // spike-stage block length, s (whole decimation steps)
+  static constexpr double kRunS = 0.0016;    // processing run length, s (whole blocks)
+  static constexpr std::size_t kMaxRunBlocks = 8;
   static constexpr double kModelZeta = 0.024;  // damping ratio of the onset model (the paper rig)
 
   void process_block();
+  void decide_blocks(std::uint64_t b, std::size_t count);
   void decide_block(std::uint64_t b, std::size_t len, std::size_t n_res, bool test_spikes);
   void band_blocks(std::uint64_t b, std::size_t count);
   void spike_test(std::uint64_t n, double t_mad);
-  void band_sample(std::complex<double> z);
+  void decide_band_sample(std::uint64_t m, double e, double mad);
   void refine_and_emit(std::uint64_t trigger, std::uint64_t end);
   std::uint64_t onset_estimate(std::uint64_t trigger, std::uint64_t k_peak, double* onset_d) const;
+  std::uint64_t search_floor(std::uint64_t trigger) const;  // oldest band sample the onset search reads
   std::uint64_t dec_end_index(double m) const;  // absolute input index of decimated sample m's end
   void calibrate(double fc_hz);
   void run_chain(const std::vector<double>& x, std::vector<std::complex<double>>& y) const;
   void shift_buffer();
-  double white_band_power() const;
+  double white_band_power(double mad) const;
+  void note_scale(std::size_t k);  // keeps the spike stage's scale after block k of a run
 
   // configuration (input samples unless named _d: decimated samples)
   double fs_ = 0, fs_d_ = 0;
   double ratio_ = 8;
   double spike_k_ = 12;
   std::size_t dec_ = 1;                 // decimation factor D
-  std::size_t blk_ = 1;                 // samples per processed block (a multiple of D)
+  std::size_t blk_ = 1;                 // samples per spike-stage block (a multiple of D)
   double inv_blk_ = 1;
+  std::size_t subs_ = 1, run_ = 1;      // blocks and samples per processing run
   std::size_t taps_ = 2;                // FIR length L = 2 D
   std::vector<float> g_re_, g_im_;      // band-pass FIR h[k] e^{+i w k}, stored reversed (oldest first)
   std::complex<double> rot_d_{1.0, 0.0};  // e^{-i w D}
@@ -267,6 +286,8 @@ class ImpactDetector {
   float* due_p_ = nullptr;  // the block starting at next_block_ runs when wp_ reaches this
   double mad_sum_ = 0;           // running winsorised mean |r|
   std::uint64_t mad_count_ = 0;
+  std::array<double, kMaxRunBlocks> scale_at_{};  // mad_sum_ after each block of the current run
+  std::array<bool, kMaxRunBlocks> scale_ready_{};  // ... and whether it had seen kMadWarmup samples
   LowPass4 lp_i_, lp_q_;
   std::complex<double> phasor_{1.0, 0.0};
 
@@ -281,6 +302,9 @@ class ImpactDetector {
   std::uint64_t holdoff_end_ = 0, lta_frozen_until_ = 0;
   bool confirming_ = false;
   std::uint64_t trigger_ = 0, peak_at_ = 0, peak_since_ = 0;
+  static constexpr std::uint64_t kNoPeak = ~std::uint64_t{0};
+  std::uint64_t est_peak_ = kNoPeak, est_floor_ = 0;  // running maximum and search floor of est_onset_d_
+  double est_onset_d_ = 0;
   double trigger_ref_ = 0, confirm_sum_ = 0;
   std::size_t confirm_seen_ = 0;
   bool confirmed_ = false;

@@ -1,11 +1,14 @@
 // StreamProcessor: glue between the sample stream, the impact detector, the impact analyzer and the
-// trend monitor. Every sample goes through the same per-sample path, so the events do not depend on
-// how the stream is cut into blocks (bit-identical for any block size; tested).
+// trend monitor. Samples reach the detector in runs that end exactly where something can happen (the
+// detector's next processing run, the next window becoming final), so the events and their order are
+// those of one sample at a time and do not depend on how the stream is cut into blocks
+// (bit-identical for any block size; tested).
 //
 // An impact's window [onset - pretrigger, onset + window) is analysed as soon as it is final: when
 // the next onset is known and cuts it, or when enough samples past its end have arrived that no
 // later trigger can be refined to an onset inside it (the detector's report_delay_samples():
-// look-back plus decision delay, 9.7-9.8 ms at the defaults). That is the event latency after the end of the decay window.
+// look-back plus decision delay, 10.9-11.0 ms at the defaults). That is the event latency after the
+// end of the decay window.
 #include "core/pipeline/stream_processor.hpp"
 
 #include <algorithm>
@@ -272,9 +275,15 @@ void StreamProcessor::process(std::span<const float> block, std::uint64_t first_
               block.begin() + static_cast<std::ptrdiff_t>(begin + first), im.raw.begin() + static_cast<std::ptrdiff_t>(slot));
     std::copy(block.begin() + static_cast<std::ptrdiff_t>(begin + first),
               block.begin() + static_cast<std::ptrdiff_t>(begin + len), im.raw.begin());
-    for (std::size_t i = begin; i < begin + len; ++i) {
-      im.detector.push(block[i]);
-      ++im.next;
+    // The detector in runs that end where something can happen: where its next block runs (only that
+    // push can report onsets) or where the front window becomes ready (next == ready_at; analyze_ready()
+    // leaves ready_at > next). Same order of events as one sample at a time.
+    for (std::size_t i = begin; i < begin + len;) {
+      std::size_t n = std::min(begin + len - i, im.detector.until_block());
+      n = im.ready_at > im.next ? static_cast<std::size_t>(std::min<std::uint64_t>(n, im.ready_at - im.next)) : 1;
+      im.detector.push(block.subspan(i, n));
+      i += n;
+      im.next += n;
       if (im.detector.has_onset()) {
         im.take_onsets(events);
         im.ready_at = 0;  // re-evaluate the queue below

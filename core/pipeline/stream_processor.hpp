@@ -12,7 +12,7 @@
 //
 // Design and numbers: core/pipeline/impact_detector.hpp (detection, onset) and impact_analyzer.hpp
 // (CWT, ridge, estimators, status). Event latency: an impact is analysed once its window
-// [onset - pretrigger_s, onset + window_s) is final, i.e. when the next onset cuts it or 9.7-9.8 ms
+// [onset - pretrigger_s, onset + window_s) is final, i.e. when the next onset cuts it or 10.9-11.0 ms
 // (the detector's report_delay_samples(): onset look-back plus decision delay, default settings)
 // after its end.
 #pragma once
