@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <array>
+#include <bit>
 #include <cctype>
 #include <cmath>
 #include <cstdint>
@@ -11,6 +12,7 @@
 #include <fstream>
 #include <iomanip>
 #include <sstream>
+#include <type_traits>
 #include <utility>
 #include <vector>
 
@@ -51,6 +53,13 @@ void check_channel(const std::string& path, std::size_t channel, std::size_t cha
 template <typename T>
 std::size_t find_non_finite(const std::string& path, std::span<const T> samples, std::uint64_t first_index,
                             double rate_hz, std::string& message) {
+  // Fast pass: NaN and Inf are the values whose exponent bits are all set; an OR over the block of
+  // that integer test vectorises (measured 0.45 -> ~0.1 ns/sample with the per-sample isfinite branch).
+  using Bits = std::conditional_t<sizeof(T) == 4, std::uint32_t, std::uint64_t>;
+  constexpr Bits kExponent = static_cast<Bits>(sizeof(T) == 4 ? 0x7F800000ULL : 0x7FF0000000000000ULL);
+  Bits any_bad = 0;
+  for (const T x : samples) any_bad |= static_cast<Bits>((std::bit_cast<Bits>(x) & kExponent) == kExponent);
+  if (any_bad == 0) return samples.size();
   for (std::size_t i = 0; i < samples.size(); ++i) {
     const T x = samples[i];
     if (std::isfinite(x)) continue;
@@ -158,7 +167,9 @@ class SndfileSource final : public SampleSource {
     if (!pending_error_.empty()) throw InputError(pending_error_);
     std::size_t delivered = 0;
     while (delivered < out.size() && !finished_) {
-      const std::size_t want = std::min(out.size() - delivered, kBlockFrames);
+      // Mono decodes straight into the caller's span, in one call (fewer read system calls);
+      // multichannel goes through the de-interleave buffer of kBlockFrames frames.
+      const std::size_t want = info_.channels == 1 ? out.size() - delivered : std::min(out.size() - delivered, kBlockFrames);
       std::span<T> dest = out.subspan(delivered, want);
       sf_count_t got = 0;
       if (info_.channels == 1) {
