@@ -12,6 +12,7 @@
 #include "core/dsp/damping.hpp"
 #include "core/dsp/ml_fit.hpp"
 #include "core/dsp/modes.hpp"
+#include "core/dsp/select.hpp"
 #include "core/dsp/morlet_cwt.hpp"
 #include "core/dsp/synthetic.hpp"
 
@@ -319,4 +320,38 @@ TEST(MlFit, GoertzelBinsMatchTheFft) {
   EXPECT_NEAR(b.modes[0].zeta / 0.024, 1.0, 1e-9);
   EXPECT_NEAR(a.modes[0].f_hz / 861.3, 1.0, 1e-11);
   EXPECT_NEAR(b.modes[0].f_hz / 861.3, 1.0, 1e-11);
+}
+
+// select_kth against std::nth_element (the reference it replaces in the impact analyzer): the same
+// value exactly (an order statistic is an element of the input, so there is no rounding), on random
+// rows, rows with ties, monotone rows (the decaying-envelope case its pivot rule is chosen for), and
+// every rank of short arrays (the insertion-sort tail).
+TEST(SelectKth, EqualsNthElement) {
+  std::mt19937 rng(7);
+  std::exponential_distribution<double> expo(1.0);
+  std::uniform_int_distribution<int> small(0, 3);
+  auto check = [](const std::vector<double>& v, std::size_t k) {
+    std::vector<double> ref = v, a = v, b(v.size());
+    std::nth_element(ref.begin(), ref.begin() + static_cast<std::ptrdiff_t>(k), ref.end());
+    EXPECT_EQ(select_kth(a.data(), b.data(), v.size(), k), ref[k]) << "n " << v.size() << " k " << k;
+  };
+  for (std::size_t n : {1, 2, 3, 7, 8, 9, 16, 63, 64, 65, 200}) {
+    for (int trial = 0; trial < 20; ++trial) {
+      std::vector<double> random(n), ties(n), decay(n);
+      for (std::size_t i = 0; i < n; ++i) {
+        random[i] = expo(rng);
+        ties[i] = static_cast<double>(small(rng));
+        decay[i] = i < n / 10 ? 1e-3 * expo(rng) : std::exp(-0.1 * static_cast<double>(i)) + 1e-3 * expo(rng);
+      }
+      std::vector<double> rising = random;
+      std::sort(rising.begin(), rising.end());
+      for (std::size_t k : {std::size_t{0}, n / 2, n - 1, static_cast<std::size_t>(trial) % n}) {
+        check(random, k);
+        check(ties, k);
+        check(decay, k);
+        check(rising, k);
+        check(std::vector<double>(rising.rbegin(), rising.rend()), k);
+      }
+    }
+  }
 }
