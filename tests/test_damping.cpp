@@ -378,3 +378,60 @@ TEST(PhaseAngle, MatchesArg) {
   EXPECT_EQ(phase_angle({-1.0, 0.01}), std::arg(std::complex<double>(-1.0, 0.01)));
   EXPECT_EQ(phase_angle({0.0, 1.0}), std::arg(std::complex<double>(0.0, 1.0)));
 }
+
+// The ridge-LS standard uncertainty against a direct evaluation of its definition: the sandwich
+// (X^T W X)^-1 X^T W^1/2 R W^1/2 X (X^T W X)^-1 with R_ij = exp(-(t_i - t_j)^2 / (4 s^2)) summed over
+// all pairs (no lag cut-off, rho by exp per pair), on a noisy row. The estimator's cut at 6
+// correlation lengths drops terms below 2e-16 of the diagonal; the rest is summation order, so the two
+// agree to 1e-11.
+TEST(RidgeLs, StandardUncertaintyEqualsDirectSandwich) {
+  const double fs = 10000.0, f = 700.0, zeta = 0.01;
+  auto x = damped_sum({{1.0, f, zeta, 0.3}}, fs, 6000);
+  std::mt19937 rng(5);
+  std::normal_distribution<double> noise(0.0, 1e-3);
+  for (double& v : x) v += noise(rng);
+  double dt = 0.0;
+  const auto w = single_row(x, fs, f, dt);
+  MorletCwtConfig cfg;
+  cfg.sample_rate_hz = fs;
+  cfg.frequencies_hz = {f};
+  cfg.max_samples = x.size();
+  const double noise_power = MorletCwt<double>(cfg).noise_gain(f) * 1e-6;
+  const EnvelopeRow row{w, dt, f, 7.0, noise_power};
+  const EnvelopeWindow win = choose_window(row, EnvelopeOptions{});
+  const DampingEstimate e = estimate_ridge_ls(row, win, f);
+  ASSERT_EQ(e.status, EstimateStatus::ok);
+  ASSERT_GT(win.end - win.start, 100u);
+
+  const double s = 7.0 / (2 * kPi * f);
+  const auto stride = std::max<std::size_t>(1, static_cast<std::size_t>(s / (8.0 * dt)));
+  std::vector<double> t, wt, y;
+  for (std::size_t c = win.start; c < win.end; c += stride) {
+    const double p = std::max(std::norm(w[c]) - noise_power, 0.25 * std::norm(w[c]));
+    t.push_back(static_cast<double>(c) * dt);
+    wt.push_back(2.0 * p / noise_power);
+    y.push_back(0.5 * std::log(p));
+  }
+  double s0 = 0, s1 = 0, s2 = 0;
+  for (std::size_t i = 0; i < t.size(); ++i) {
+    s0 += wt[i];
+    s1 += wt[i] * (t[i] - t[0]);
+    s2 += wt[i] * (t[i] - t[0]) * (t[i] - t[0]);
+  }
+  double m00 = 0, m01 = 0, m11 = 0;
+  for (std::size_t i = 0; i < t.size(); ++i)
+    for (std::size_t j = 0; j < t.size(); ++j) {
+      const double d = (t[i] - t[j]) / (2.0 * s);
+      const double r = std::sqrt(wt[i] * wt[j]) * std::exp(-d * d);
+      const double ti = t[i] - t[0], tj = t[j] - t[0];
+      m00 += r;
+      m01 += r * ti;
+      m11 += r * ti * tj;
+    }
+  const double det = s0 * s2 - s1 * s1;
+  const double b10 = -s1 / det, b11 = s0 / det;
+  const double slope_sd = std::sqrt(b10 * b10 * m00 + 2.0 * b10 * b11 * m01 + b11 * b11 * m11);
+  const double omega = 2 * kPi * f, sigma = decay_from_zeta(e.zeta, omega);
+  const double zeta_sd = omega * omega / std::pow(omega * omega + sigma * sigma, 1.5) * slope_sd;
+  EXPECT_NEAR(e.zeta_sd / zeta_sd, 1.0, 1e-11);
+}
