@@ -6,12 +6,14 @@
 #include <array>
 #include <random>
 #include <cmath>
+#include <limits>
 #include <numbers>
 #include <vector>
 
 #include "core/dsp/damping.hpp"
 #include "core/dsp/ml_fit.hpp"
 #include "core/dsp/modes.hpp"
+#include "core/dsp/select.hpp"
 #include "core/dsp/morlet_cwt.hpp"
 #include "core/dsp/synthetic.hpp"
 
@@ -319,4 +321,117 @@ TEST(MlFit, GoertzelBinsMatchTheFft) {
   EXPECT_NEAR(b.modes[0].zeta / 0.024, 1.0, 1e-9);
   EXPECT_NEAR(a.modes[0].f_hz / 861.3, 1.0, 1e-11);
   EXPECT_NEAR(b.modes[0].f_hz / 861.3, 1.0, 1e-11);
+}
+
+// select_kth against std::nth_element (the reference it replaces in the impact analyzer): the same
+// value exactly (an order statistic is an element of the input, so there is no rounding), on random
+// rows, rows with ties, monotone rows (the decaying-envelope case its pivot rule is chosen for), and
+// every rank of short arrays (the insertion-sort tail).
+TEST(SelectKth, EqualsNthElement) {
+  std::mt19937 rng(7);
+  std::exponential_distribution<double> expo(1.0);
+  std::uniform_int_distribution<int> small(0, 3);
+  auto check = [](const std::vector<double>& v, std::size_t k) {
+    std::vector<double> ref = v, a = v, b(v.size());
+    std::nth_element(ref.begin(), ref.begin() + static_cast<std::ptrdiff_t>(k), ref.end());
+    EXPECT_EQ(select_kth(a.data(), b.data(), v.size(), k), ref[k]) << "n " << v.size() << " k " << k;
+  };
+  for (std::size_t n : {1, 2, 3, 7, 8, 9, 16, 63, 64, 65, 200}) {
+    for (int trial = 0; trial < 20; ++trial) {
+      std::vector<double> random(n), ties(n), decay(n);
+      for (std::size_t i = 0; i < n; ++i) {
+        random[i] = expo(rng);
+        ties[i] = static_cast<double>(small(rng));
+        decay[i] = i < n / 10 ? 1e-3 * expo(rng) : std::exp(-0.1 * static_cast<double>(i)) + 1e-3 * expo(rng);
+      }
+      std::vector<double> rising = random;
+      std::sort(rising.begin(), rising.end());
+      for (std::size_t k : {std::size_t{0}, n / 2, n - 1, static_cast<std::size_t>(trial) % n}) {
+        check(random, k);
+        check(ties, k);
+        check(decay, k);
+        check(rising, k);
+        check(std::vector<double>(rising.rbegin(), rising.rend()), k);
+      }
+    }
+  }
+}
+
+// phase_angle against std::arg (atan2, correctly rounded in glibc): within 2 ulp of the angle on the
+// series' range (the division and the Horner steps each round once; the omitted terms are below
+// 3e-18 relative), and the same value as std::arg off that range, at every quadrant and at the
+// range's boundary.
+TEST(PhaseAngle, MatchesArg) {
+  std::mt19937 rng(11);
+  std::uniform_real_distribution<double> angle(-0.13, 0.13), radius(1e-6, 1e3), any(-kPi, kPi);
+  for (int i = 0; i < 20000; ++i) {
+    const double a = i % 4 == 0 ? any(rng) : angle(rng);
+    const std::complex<double> z = std::polar(radius(rng), a);
+    const double ref = std::arg(z), got = phase_angle(z);
+    EXPECT_LE(std::abs(got - ref), 2.0 * std::numeric_limits<double>::epsilon() * std::abs(ref))
+        << "z = " << z.real() << " + " << z.imag() << " i";
+  }
+  for (double im : {0.125, -0.125, 0.1250000001, 0.0, -0.0}) {
+    const std::complex<double> z(1.0, im);
+    EXPECT_NEAR(phase_angle(z), std::arg(z), 2.0 * std::numeric_limits<double>::epsilon() * std::abs(std::arg(z)));
+  }
+  EXPECT_EQ(phase_angle({-1.0, 0.01}), std::arg(std::complex<double>(-1.0, 0.01)));
+  EXPECT_EQ(phase_angle({0.0, 1.0}), std::arg(std::complex<double>(0.0, 1.0)));
+}
+
+// The ridge-LS standard uncertainty against a direct evaluation of its definition: the sandwich
+// (X^T W X)^-1 X^T W^1/2 R W^1/2 X (X^T W X)^-1 with R_ij = exp(-(t_i - t_j)^2 / (4 s^2)) summed over
+// all pairs (no lag cut-off, rho by exp per pair), on a noisy row. The estimator's cut at 6
+// correlation lengths drops terms below 2e-16 of the diagonal; the rest is summation order, so the two
+// agree to 1e-11.
+TEST(RidgeLs, StandardUncertaintyEqualsDirectSandwich) {
+  const double fs = 10000.0, f = 700.0, zeta = 0.01;
+  auto x = damped_sum({{1.0, f, zeta, 0.3}}, fs, 6000);
+  std::mt19937 rng(5);
+  std::normal_distribution<double> noise(0.0, 1e-3);
+  for (double& v : x) v += noise(rng);
+  double dt = 0.0;
+  const auto w = single_row(x, fs, f, dt);
+  MorletCwtConfig cfg;
+  cfg.sample_rate_hz = fs;
+  cfg.frequencies_hz = {f};
+  cfg.max_samples = x.size();
+  const double noise_power = MorletCwt<double>(cfg).noise_gain(f) * 1e-6;
+  const EnvelopeRow row{w, dt, f, 7.0, noise_power};
+  const EnvelopeWindow win = choose_window(row, EnvelopeOptions{});
+  const DampingEstimate e = estimate_ridge_ls(row, win, f);
+  ASSERT_EQ(e.status, EstimateStatus::ok);
+  ASSERT_GT(win.end - win.start, 100u);
+
+  const double s = 7.0 / (2 * kPi * f);
+  const auto stride = std::max<std::size_t>(1, static_cast<std::size_t>(s / (8.0 * dt)));
+  std::vector<double> t, wt, y;
+  for (std::size_t c = win.start; c < win.end; c += stride) {
+    const double p = std::max(std::norm(w[c]) - noise_power, 0.25 * std::norm(w[c]));
+    t.push_back(static_cast<double>(c) * dt);
+    wt.push_back(2.0 * p / noise_power);
+    y.push_back(0.5 * std::log(p));
+  }
+  double s0 = 0, s1 = 0, s2 = 0;
+  for (std::size_t i = 0; i < t.size(); ++i) {
+    s0 += wt[i];
+    s1 += wt[i] * (t[i] - t[0]);
+    s2 += wt[i] * (t[i] - t[0]) * (t[i] - t[0]);
+  }
+  double m00 = 0, m01 = 0, m11 = 0;
+  for (std::size_t i = 0; i < t.size(); ++i)
+    for (std::size_t j = 0; j < t.size(); ++j) {
+      const double d = (t[i] - t[j]) / (2.0 * s);
+      const double r = std::sqrt(wt[i] * wt[j]) * std::exp(-d * d);
+      const double ti = t[i] - t[0], tj = t[j] - t[0];
+      m00 += r;
+      m01 += r * ti;
+      m11 += r * ti * tj;
+    }
+  const double det = s0 * s2 - s1 * s1;
+  const double b10 = -s1 / det, b11 = s0 / det;
+  const double slope_sd = std::sqrt(b10 * b10 * m00 + 2.0 * b10 * b11 * m01 + b11 * b11 * m11);
+  const double omega = 2 * kPi * f, sigma = decay_from_zeta(e.zeta, omega);
+  const double zeta_sd = omega * omega / std::pow(omega * omega + sigma * sigma, 1.5) * slope_sd;
+  EXPECT_NEAR(e.zeta_sd / zeta_sd, 1.0, 1e-11);
 }

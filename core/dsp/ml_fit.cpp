@@ -323,6 +323,55 @@ double normal_equations_n(const Problem& p, const SmallVec& x, SmallMat* A, Smal
   return rss;
 }
 
+// The start's linear least squares: at given frequencies and dampings with all linear parameters
+// (amplitudes, residual terms) zero, the residual is the data and the normal equations restricted to
+// the linear parameters are those of the linear problem. This computes only that block (the
+// derivatives in f and ln zeta, which normal_equations would also form, are not needed), with the
+// same arithmetic per entry as normal_equations (the result is identical). Row/column order: each
+// mode's Re C, Im C, then each residual term's Re b, Im b.
+void linear_normal_equations(const Problem& p, const SmallVec& x, SmallMat& a, SmallVec& g) {
+  const int n = 2 * p.modes + 2 * p.residual_terms;
+  double jre[kMaxSmall], jim[kMaxSmall];
+  double acc[kMaxSmall][kMaxSmall] = {};
+  double acc_g[kMaxSmall] = {};
+  p.states.resize(static_cast<std::size_t>(p.modes));
+  for (int j = 0; j < p.modes; ++j) p.states[static_cast<std::size_t>(j)] = p.mode_state(x, j);
+  for (std::size_t k = 0; k < p.data.size(); ++k) {
+    const cd wk = p.w[k];
+    for (int j = 0; j < p.modes; ++j) {
+      const Problem::ModeState& m = p.states[static_cast<std::size_t>(j)];
+      const cd g1 = mul(m.one_minus_zn, inv(1.0 - mul(m.z, wk)));
+      const cd g2 = mul(std::conj(m.one_minus_zn), inv(1.0 - mul(std::conj(m.z), wk)));
+      const cd c2 = 0.5 * (g1 + g2);
+      const cd diff = g1 - g2;
+      const cd c3(-0.5 * diff.imag(), 0.5 * diff.real());
+      jre[2 * j] = c2.real();
+      jim[2 * j] = c2.imag();
+      jre[2 * j + 1] = c3.real();
+      jim[2 * j + 1] = c3.imag();
+    }
+    for (int b = 0; b < p.residual_terms; ++b) {
+      const double ub = p.basis[k * static_cast<std::size_t>(p.residual_terms) + static_cast<std::size_t>(b)];
+      const int c = 2 * p.modes + 2 * b;
+      jre[c] = ub;
+      jim[c] = 0.0;
+      jre[c + 1] = 0.0;
+      jim[c + 1] = ub;
+    }
+    const cd r = p.data[k];
+    for (int i = 0; i < n; ++i) {
+      acc_g[i] += jre[i] * r.real() + jim[i] * r.imag();
+      for (int c = i; c < n; ++c) acc[i][c] += jre[i] * jre[c] + jim[i] * jim[c];
+    }
+  }
+  a.resize(n, n);
+  g.resize(n);
+  for (int i = 0; i < n; ++i) {
+    g[i] = acc_g[i];
+    for (int c = i; c < n; ++c) a(i, c) = a(c, i) = acc[i][c];
+  }
+}
+
 double normal_equations(const Problem& p, const SmallVec& x, SmallMat* A, SmallVec* g) {
   switch (p.params()) {
     case 6: return normal_equations_n<6>(p, x, A, g);
@@ -629,10 +678,11 @@ void SpectralModeFitter::fit(std::span<const double> segment, std::span<const Mo
       x[kPerMode * j + 1] = std::log(guesses[static_cast<std::size_t>(j)].zeta);
     }
     SmallMat a(n_par, n_par);
-    SmallVec g(n_par);
     // With the linear parameters at 0 the residual is the data, and the model is linear in them: the
     // linear least-squares solution solves the normal equations restricted to their rows and columns.
-    normal_equations(p, x, &a, &g);
+    SmallMat al(n_par, n_par);
+    SmallVec gl(n_par);
+    linear_normal_equations(p, x, al, gl);
     int lin[kMaxSmall];
     int n_lin = 0;
     for (int j = 0; j < p.modes; ++j) {
@@ -642,12 +692,6 @@ void SpectralModeFitter::fit(std::span<const double> segment, std::span<const Mo
     for (int b = 0; b < p.residual_terms; ++b) {
       lin[n_lin++] = kPerMode * p.modes + 2 * b;
       lin[n_lin++] = kPerMode * p.modes + 2 * b + 1;
-    }
-    SmallMat al(n_lin, n_lin);
-    SmallVec gl(n_lin);
-    for (int r = 0; r < n_lin; ++r) {
-      gl[r] = g[lin[r]];
-      for (int c = 0; c < n_lin; ++c) al(r, c) = a(lin[r], lin[c]);
     }
     // Jacobi-scaled Cholesky (QR with column pivoting when that matrix is not positive definite).
     SmallVec sol(n_lin);

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <numbers>
 
+#include "core/dsp/select.hpp"
 #include "core/pipeline/stream_processor.hpp"
 
 namespace ridgewatch::pipeline {
@@ -64,6 +65,7 @@ ImpactAnalyzer::ImpactAnalyzer(const ImpactAnalyzerConfig& cfg, double fs) {
   grid_.assign(rows * max_cols, {});
   xf_.assign(max_samples(), 0.0f);
   scratch_.assign(max_cols, 0.0);
+  scratch2_.assign(max_cols, 0.0);
   row_median_.assign(rows, 0.0);
   envelope_ws_.reserve(max_cols, max_cols);
   ml_result_.modes.reserve(1);
@@ -150,42 +152,47 @@ ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
     cwt_->row(f, std::span<std::complex<float>>(wf_.data(), cols));
     widen();
   };
-  cwt_->grid_rows(std::span<std::complex<float>>(grid_.data(), rows * cols));
-  for (std::size_t r = 0; r < rows; ++r) {
-    const std::complex<float>* g = grid_.data() + r * cols;
-    double* p = power_.data() + r * cols;
-    for (std::size_t c = 0; c < cols; ++c) p[c] = std::norm(std::complex<double>(g[c]));
-  }
-  auto row_noise = [&](double f) { return noise_var * gain_at(f); };
-  // Stationary content (mesh lines, hum harmonics inside the band) has the same power in every
-  // column; the free response decays within the window. Subtracting each row's median power over
-  // the window keeps the impact's ridge and removes the lines' (a line moving through the band
-  // with the speed, e.g. 550 Hz + 20 %, would otherwise out-shine a weak impact).
-  for (std::size_t r = 0; r < rows; ++r) {
-    double* p = power_.data() + r * cols;
-    std::copy(p, p + cols, scratch_.begin());
-    const std::size_t mid = cols / 2;
-    std::nth_element(scratch_.begin(), scratch_.begin() + static_cast<std::ptrdiff_t>(mid),
-                     scratch_.begin() + static_cast<std::ptrdiff_t>(cols));
-    const double med = scratch_[mid];
-    row_median_[r] = med;
-    for (std::size_t c = 0; c < cols; ++c) p[c] -= med;
-  }
-  auto pw = [&](std::size_t r, std::size_t c) { return power_[r * cols + c]; };
-
-  // 2. Ridge.
+  // 2. Ridge search window (checked before any power is computed: a too-short window needs none).
   const auto onset_col = static_cast<std::size_t>(std::ceil(onset_s / dt));
   const auto edge_cols = static_cast<std::size_t>(std::ceil(4.0 * kernel_s / dt));
   const std::size_t last_col = cols > edge_cols ? cols - edge_cols : 0;
   if (onset_col + 3 > last_col)
     return finish(win.end == WindowEnd::complete ? ImpactStatus::too_short : ImpactStatus::window_cut);
+
+  cwt_->grid_rows(std::span<std::complex<float>>(grid_.data(), rows * cols));
+  auto row_noise = [&](double f) { return noise_var * gain_at(f); };
+  // Stationary content (mesh lines, hum harmonics inside the band) has the same power in every
+  // column; the free response decays within the window. Subtracting each row's median power over
+  // the window keeps the impact's ridge and removes the lines' (a line moving through the band
+  // with the speed, e.g. 550 Hz + 20 %, would otherwise out-shine a weak impact).
+  // One pass per row: |W|^2 (into the power grid and the median's scratch), the median
+  // (dsp::select_kth: the same value as nth_element without its unpredictable branches), then the
+  // subtraction together with the row's first maximum after the onset. The ridge starts at the
+  // largest value after the onset, the first one in row-major order on ties (rows compared with >).
   std::size_t r0 = 0, c0 = onset_col;
-  for (std::size_t r = 0; r < rows; ++r)
-    for (std::size_t c = onset_col; c < last_col; ++c)
-      if (pw(r, c) > pw(r0, c0)) {
-        r0 = r;
-        c0 = c;
-      }
+  double peak_power = 0.0;
+  for (std::size_t r = 0; r < rows; ++r) {
+    const std::complex<float>* g = grid_.data() + r * cols;
+    double* p = power_.data() + r * cols;
+    double* s = scratch_.data();
+    for (std::size_t c = 0; c < cols; ++c) {
+      const double re = g[c].real(), im = g[c].imag();
+      s[c] = p[c] = re * re + im * im;
+    }
+    const double med = dsp::select_kth(s, scratch2_.data(), cols, cols / 2);
+    row_median_[r] = med;
+    for (std::size_t c = 0; c < cols; ++c) p[c] -= med;
+    std::size_t c_max = onset_col;
+    for (std::size_t c = onset_col + 1; c < last_col; ++c)
+      if (p[c] > p[c_max]) c_max = c;
+    if (r == 0 || p[c_max] > peak_power) {
+      peak_power = p[c_max];
+      r0 = r;
+      c0 = c_max;
+    }
+  }
+  auto pw = [&](std::size_t r, std::size_t c) { return power_[r * cols + c]; };
+
   bool ridge_lost = r0 == 0 || r0 + 1 == rows;
   // Columns [0, ridge_end) hold the free response; ridge_ended: it stopped before the window end.
   // A free response that stops (dry friction: the motion sticks once the amplitude is small) leaves
