@@ -83,6 +83,7 @@ struct Daemon::Impl {
   std::mutex space_mutex;
   std::condition_variable space;
   std::atomic<bool> producer_waiting{false};
+  std::atomic<std::size_t> producer_resume_items{0};  // free space the waiting producer wants
 
   GpioLines gpio;
   std::vector<drivers::TachoEdge> edges;
@@ -169,11 +170,17 @@ struct Daemon::Impl {
         if (n == 0) break;
         // A replayed file can wait for the consumer (lossless, however fast the replay); live capture
         // cannot hold the device up, so there a full ring drops and counts (overrun, a gap downstream).
+        // A full ring is refilled only once a quarter of it is free again: producer and consumer then
+        // alternate in large batches (on one core every alternation costs two context switches;
+        // resuming at each freed chunk measured 0.39 s against 0.38 s CPU for the 600 s file).
+        const std::size_t resume = std::max(n, ring->usable_items() / 4);
         while (!live && ring->writable_items() < n && !acq_stop.load(std::memory_order_relaxed)) {
           std::unique_lock<std::mutex> lock(space_mutex);
+          producer_resume_items.store(resume);
           producer_waiting.store(true);
-          space.wait_for(lock, std::chrono::milliseconds(2),
-                         [&] { return ring->writable_items() >= n || acq_stop.load(std::memory_order_relaxed); });
+          space.wait_for(lock, std::chrono::milliseconds(2), [&] {
+            return ring->writable_items() >= resume || acq_stop.load(std::memory_order_relaxed);
+          });
           producer_waiting.store(false);
         }
         ring->write(std::span<const float>(out.data(), n));
@@ -402,7 +409,9 @@ int Daemon::run() {
     if (!chunk.empty()) {
       d.processor->process(chunk, regions.first_stream_index, events);
       d.ring->consume(chunk.size());
-      if (d.producer_waiting.load()) d.space.notify_one();
+      if (d.producer_waiting.load() &&
+          d.ring->usable_items() - d.ring->fill_items() >= d.producer_resume_items.load())
+        d.space.notify_one();
       d.stats.samples += chunk.size();
       d.emit(events);
       events.clear();
