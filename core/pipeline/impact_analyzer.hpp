@@ -127,6 +127,7 @@ class ImpactAnalyzer {
   std::size_t n_pre_ = 0, n_win_ = 0, n_ml_margin_ = 0;
   std::vector<double> rows_hz_;
   std::vector<double> row_gain_;                 // cwt_->noise_gain(rows_hz_[r]), computed once
+  std::vector<std::uint8_t> near_;               // rows x rows: |ln(f_r / f_q)| <= 1 / eta0
   std::unique_ptr<dsp::MorletCwt<float>> cwt_;
   std::vector<float> xf_;                        // the CWT input (window or half-rate copy), float
   std::vector<double> xd_;                       // the half-rate copy in double (ML input)
