@@ -25,7 +25,10 @@
 //     ones to 1e-6 (sim-tacho). Otherwise (25.6 kHz, 8 kHz, ...) everything runs at full rate.
 //     Measured (bench_pipeline BM_AnalyzerMl, 249 impacts at 51.2 kHz, with the CWT's half-length
 //     forward FFT): 14.9-16.5 -> 12.85 us per impact (ridge-ls 9.8-10.3 -> 8.9 us); the copy with the
-//     peak check 0.8 us, the CWT forward FFT 2.1 -> 1.0 us, the ML Goertzel bins about half.
+//     peak check 0.8 us, the CWT forward FFT 2.1 -> 1.0 us, the ML Goertzel bins about half. With the
+//     log-free ridge follow-up (step 2) and the shared f_ridge / f_d row (step 3): 12.0 us (ridge-ls
+//     8.0 us). Not taken: 2 eta0 rows per unit ln f (14 -> 10 rows, 11.6 us) moved sim-second-mode's
+//     median |zeta error| from 1.5 % to 26 %.
 //  1. Band-limited Morlet CWT (core/dsp/morlet_cwt.hpp, Eq. 1-7 with the amplitude normalisation that
 //     makes |W| the envelope of Eq. 12) of the window [onset - pretrigger, onset + window) on rows
 //     log-spaced over f_expected (1 +- band_rel), 3 eta0 rows per unit of ln f (adjacent rows overlap
@@ -49,8 +52,9 @@
 //     no envelope window between the edge skips (10 kernel widths, 13 ms at 860 Hz), the status is
 //     too_short.
 //  3. Damped frequency from the phase slope of W (unbiased, README "Frequency"; rows are decimated, so
-//     the phase is unwrapped around the row frequency). Envelope row at f_d; the foundation's window
-//     choice, two-point (Eq. 17-19) and ridge least-squares estimates.
+//     the phase is unwrapped around the row frequency). Envelope row at f_d (the f_ridge row itself
+//     when f_d is within 2 % of a filter sd of it: a constant envelope factor >= 0.9998); the
+//     foundation's window choice, two-point (Eq. 17-19) and ridge least-squares estimates.
 //  4. ml (default): SpectralModeFitter with one mode in f_d (1 +- ml_band_rel, default 12 %) on the segment from
 //     onset + 0.5 ms (the 0.15 ms force pulse and the onset's uncertainty are over) to the end of the
 //     usable window (half rate: the copy's samples, fitters made with (len / 2, fs / 2)), started from
