@@ -94,12 +94,13 @@ struct SynthOptions {
   double spike_amplitude = 1.0;
   bool impacts = true;
   unsigned seed = 1;
+  double fs = kFs;              // sample rate, Hz
 };
 
 // x(t) = A exp(-sigma (t - t0)) sin(omega_d (t - t0)) after each onset t0 (Eq. 16 with phi = 0: the
 // velocity response to an impulse starts at zero and rises within the first quarter period).
 Synthetic make_signal(const SynthOptions& o) {
-  const auto n = static_cast<std::size_t>(o.seconds * kFs);
+  const auto n = static_cast<std::size_t>(o.seconds * o.fs);
   Synthetic s;
   s.x.assign(n, 0.0f);
   std::vector<double> acc(n, 0.0);
@@ -110,24 +111,24 @@ Synthetic make_signal(const SynthOptions& o) {
   std::uniform_real_distribution<double> jitter(0.9, 1.1);
   if (o.impacts) {
     for (double t0 = o.first_s; t0 < o.seconds; t0 += o.period_s) {
-      const auto k0 = static_cast<std::size_t>(std::ceil(t0 * kFs));
+      const auto k0 = static_cast<std::size_t>(std::ceil(t0 * o.fs));
       s.impacts.push_back(k0);
       const double a = o.amplitude * jitter(rng);
       for (std::size_t k = k0; k < n; ++k) {
-        const double t = static_cast<double>(k) / kFs - t0;
+        const double t = static_cast<double>(k) / o.fs - t0;
         if (sigma * t > 40) break;
         acc[k] += a * std::exp(-sigma * t) * std::sin(omega * t);
       }
     }
   }
   for (std::size_t k = 0; k < n; ++k) {
-    const double t = static_cast<double>(k) / kFs;
+    const double t = static_cast<double>(k) / o.fs;
     acc[k] += o.line_550 * std::sin(2 * std::numbers::pi * 550 * t + 0.3) +
               o.line_1100 * std::sin(2 * std::numbers::pi * 1100 * t + 1.1) +
               o.hum_50 * std::sin(2 * std::numbers::pi * 50 * t) + o.noise_sd * gauss(rng);
   }
   for (double ts : o.spike_times_s) {
-    const auto k = static_cast<std::size_t>(ts * kFs);
+    const auto k = static_cast<std::size_t>(ts * o.fs);
     acc[k] += o.spike_amplitude;
     s.spikes.push_back(k);
   }
@@ -406,6 +407,90 @@ TEST_F(AnalyzerFixture, ModeOutsideTheBandIsRidgeLost) {
   EXPECT_EQ(e.status, ImpactStatus::ridge_lost) << to_string(e.status) << " f " << e.f_hz;
 }
 
+// Half-rate analysis (impact_analyzer.hpp, step 0): the CWT and the ML fit run on the (1, 2, 1)/4
+// half-rate copy when the analysis' highest frequency, the top row's kept band
+// f_expected (1 + band_rel) (1 + c / eta0) with c = sqrt(2 ln 1e6), is at most fs / 8.
+TEST(ImpactAnalyzerHalfRate, DecisionFollowsTheRate) {
+  const PipelineConfig cfg = default_config();
+  const ImpactAnalyzerConfig& a = cfg.analyzer;
+  const double top = a.f_expected_hz * (1.0 + a.band_rel) * (1.0 + std::sqrt(2.0 * std::log(1e6)) / a.eta0);
+  EXPECT_TRUE(ImpactAnalyzer::decimates(a, 51200.0));
+  EXPECT_TRUE(ImpactAnalyzer::decimates(a, 25600.0));
+  EXPECT_FALSE(ImpactAnalyzer::decimates(a, 8000.0));
+  EXPECT_TRUE(ImpactAnalyzer::decimates(a, 8.0 * top * 1.001));
+  EXPECT_FALSE(ImpactAnalyzer::decimates(a, 8.0 * top * 0.999));
+  // 51.2 kHz keeps the full-rate grids at half rate (CWT decimation 30 -> 15, ML segment 1766 -> 883);
+  // 25.6 kHz passes the rate bound but not the grid condition (CWT decimation 15 is odd, segment 883).
+  EXPECT_EQ(ImpactAnalyzer(a, 51200.0).input_decimation(), 2u);
+  EXPECT_EQ(ImpactAnalyzer(a, 25600.0).input_decimation(), 1u);
+  EXPECT_EQ(ImpactAnalyzer(a, 8000.0).input_decimation(), 1u);
+}
+
+// A free response with no noise, at the decimating rate 51.2 kHz and full-rate ones (25.6, 8 kHz): the one-mode model is exact on both paths (a damped sinusoid through the taps is a damped
+// sinusoid with the same sigma and omega), so the ML estimate must equal the analytic truth to the
+// fit's convergence (1e-5 relative in zeta, 1e-6 in f; float32 rounding of the CWT does not enter the
+// fit). The amplitude is reported at the segment start: 0.5 exp(-sigma t0), with t0 = the first sample
+// at or after onset + ceil(0.5 ms fs) (half rate: the first copy sample 2m there); at half rate it
+// carries the 1/H(f) compensation (without it: -0.28 % at 51.2 kHz), checked to 1e-5. The ML segment covers the window after the margin to within 3 samples.
+TEST(ImpactAnalyzerHalfRate, NoiseFreeDecayIsExactOnBothPaths) {
+  const PipelineConfig cfg = default_config();
+  for (const double fs : {51200.0, 25600.0, 8000.0}) {
+    ImpactAnalyzer a(cfg.analyzer, fs);
+    EXPECT_EQ(a.input_decimation(), fs > 30000.0 ? 2u : 1u);
+    const std::size_t pre = a.pretrigger_samples();
+    std::vector<double> x(a.max_samples(), 0.0);
+    const double omega = 2.0 * std::numbers::pi * kF, sigma = kZeta * omega / std::sqrt(1.0 - kZeta * kZeta);
+    for (std::size_t k = pre; k < x.size(); ++k) {
+      const double t = static_cast<double>(k - pre) / fs;
+      x[k] = 0.5 * std::exp(-sigma * t) * std::sin(omega * t);
+    }
+    ImpactWindow w;
+    w.samples = x;
+    w.onset_offset = pre;
+    w.noise_var = 1e-14;
+    const ImpactEvent e = a.analyze(w);
+    ASSERT_EQ(e.status, ImpactStatus::ok) << to_string(e.status) << " fs " << fs;
+    EXPECT_NEAR(e.zeta / kZeta, 1.0, 1e-5) << "fs " << fs;
+    EXPECT_NEAR(e.f_hz / kF, 1.0, 1e-6) << "fs " << fs;
+    const auto margin = static_cast<std::size_t>(std::ceil(0.0005 * fs));
+    const std::size_t seg0 = pre + margin;
+    const double t0 = a.input_decimation() == 2 ? static_cast<double>(2 * ((seg0 + 1) / 2) - pre) / fs
+                                                : static_cast<double>(seg0 - pre) / fs;
+    EXPECT_NEAR(e.amplitude / (0.5 * std::exp(-sigma * t0)), 1.0, 1e-5) << "fs " << fs;
+    // Half rate: the complete window's segment is exactly half the full-rate one.
+    EXPECT_NEAR(e.window_s, static_cast<double>(a.window_samples() - margin) / fs, 1e-9) << "fs " << fs;
+  }
+}
+
+// The full-rate path with noise (8 kHz input, below the half-rate bound): the same 1 % noise as
+// OkWithAccurateEstimate, whose in-band density is 25.6 / 8 times higher at 8 kHz: the ML sd grows by
+// sqrt(3.2) = 1.8 (1 % -> 1.8 %), so 4 sd = 0.072.
+TEST(ImpactAnalyzerHalfRate, FullRatePathWithNoise) {
+  const PipelineConfig cfg = default_config();
+  const double fs = 8000.0;
+  ImpactAnalyzer a(cfg.analyzer, fs);
+  ASSERT_EQ(a.input_decimation(), 1u);
+  const std::size_t pre = a.pretrigger_samples();
+  std::vector<double> x(a.max_samples(), 0.0);
+  std::mt19937_64 rng(5);
+  std::normal_distribution<double> g(0.0, 0.005);
+  const double omega = 2.0 * std::numbers::pi * kF, sigma = kZeta * omega / std::sqrt(1.0 - kZeta * kZeta);
+  for (std::size_t k = 0; k < x.size(); ++k) {
+    x[k] = g(rng);
+    if (k >= pre) {
+      const double t = static_cast<double>(k - pre) / fs;
+      x[k] += 0.5 * std::exp(-sigma * t) * std::sin(omega * t);
+    }
+  }
+  ImpactWindow w;
+  w.samples = x;
+  w.onset_offset = pre;
+  w.noise_var = 0.005 * 0.005;
+  const ImpactEvent e = a.analyze(w);
+  EXPECT_EQ(e.status, ImpactStatus::ok) << to_string(e.status);
+  EXPECT_NEAR(e.zeta / kZeta, 1.0, 0.072);
+}
+
 // Real-time contract (stream_processor.hpp): once constructed and warmed up, process() allocates
 // nothing, per sample or per impact (detection, CWT, ridge, envelope estimators, ML fit, trend). Both
 // counters must stay put: operator new (allocation_counter.hpp) and the C allocation functions
@@ -459,6 +544,54 @@ TEST(StreamProcessor, ProcessAllocatesNothingAfterWarmUp) {
   EXPECT_EQ(g_c_allocations.load(), c_before);  // C functions not replaced under the sanitizers
 #endif
   EXPECT_EQ(v[999], 1.0);
+}
+
+// The half-rate path through the StreamProcessor at 51.2 kHz: events bit-identical for any block
+// split (the copy is made per window), allocation-free after warm-up, and accurate: 1 % noise at twice
+// the rate of OkWithAccurateEstimate halves the in-band noise density, so one event's ML sd is
+// 1 % / sqrt(2) = 0.7 %; the median of the ok events is held to 3 % (4 sd of a single event).
+TEST(StreamProcessor, HalfRatePathAt51kHz) {
+  SynthOptions o;
+  o.fs = 51200.0;
+  o.seconds = 0.6;
+  o.line_550 = 0.02;
+  const Synthetic s = make_signal(o);
+  PipelineConfig cfg = default_config();
+  cfg.sample_rate_hz = o.fs;
+  ASSERT_EQ(ImpactAnalyzer(cfg.analyzer, o.fs).input_decimation(), 2u);
+  const auto a = run(cfg, s.x, 4096);
+  ASSERT_GE(a.size(), s.impacts.size() - 1);
+  std::vector<double> z;
+  for (const auto& e : a)
+    if (e.status == ImpactStatus::ok) z.push_back(e.zeta);
+  ASSERT_GE(z.size(), s.impacts.size() - 2);
+  std::nth_element(z.begin(), z.begin() + static_cast<long>(z.size() / 2), z.end());
+  EXPECT_NEAR(z[z.size() / 2] / kZeta, 1.0, 0.03);
+  for (std::size_t block : {std::size_t{1}, std::size_t{37}}) {
+    const auto b = run(cfg, s.x, block);
+    ASSERT_EQ(a.size(), b.size()) << block;
+    for (std::size_t i = 0; i < a.size(); ++i) {
+      EXPECT_EQ(a[i].status, b[i].status);
+      EXPECT_EQ(std::memcmp(&a[i].zeta, &b[i].zeta, sizeof(double)), 0) << block << " " << i;
+      EXPECT_EQ(std::memcmp(&a[i].f_hz, &b[i].f_hz, sizeof(double)), 0) << block << " " << i;
+      EXPECT_EQ(std::memcmp(&a[i].amplitude, &b[i].amplitude, sizeof(double)), 0) << block << " " << i;
+    }
+  }
+  // Allocation-free once warmed up (both estimators' paths run inside analyze()).
+  StreamProcessor p(cfg);
+  std::vector<ImpactEvent> events;
+  events.reserve(4 * s.impacts.size());
+  const std::size_t warm = s.x.size() / 3, block = 1000;
+  p.process(std::span<const float>(s.x.data(), warm), 0, events);
+  ASSERT_GE(events.size(), 2u);
+  const std::size_t warm_events = events.size();
+  const long new_before = ridgewatch::test::allocations();
+  const long c_before = g_c_allocations.load();
+  for (std::size_t i = warm; i < s.x.size(); i += block)
+    p.process(std::span<const float>(s.x.data() + i, std::min(block, s.x.size() - i)), i, events);
+  EXPECT_EQ(ridgewatch::test::allocations() - new_before, 0);
+  EXPECT_EQ(g_c_allocations.load() - c_before, 0);
+  EXPECT_GT(events.size(), warm_events + 5);
 }
 
 TEST(Validate, MessagesNameTheField) {

@@ -36,6 +36,24 @@
 // keeps the error near 1e-6 of max |W| (measured against the exact transform: <= 4.5e-7 double and
 // <= 1.0e-6 float in test_morlet_cwt, 1.2e-7 / 3.5e-7 on the rig workload in bench/bench_cwt.cpp).
 //
+// Band-limited forward transform: only the bins up to the top of band_limit_hz()'s band are read, so
+// for even L the real FFT is done as a complex FFT of L/2 sample pairs, unpacked for those bins only
+// (FFTW's estimated r2c plans of some lengths are slow: 1.7 us for 1200 points against 0.9 us for the
+// 600-point complex one).
+//
+// Half-rate input (half_rate_121_input): the signal is y[m] = (x[2m-1] + 2 x[2m] + x[2m+1]) / 4 of an
+// x sampled at fs_x = 2 fs. Below fs/2 the DTFT of y is H(f) X(f) + H(fs - f) X(f - fs) with
+// H(f) = cos^2(pi f / fs_x) (the taps' response; symmetric around x[2m], so no delay), i.e. x's band
+// times H plus the image from fs - f attenuated by H(fs - f) = sin^2(pi f / fs_x). Every filter gain is
+// divided by H at its bin, so that W is the transform of x's band up to that image. Noise: white x of
+// variance sigma^2 gives y the spectral density sigma^2 (H(f)^2 + H(fs - f)^2) / 2 (in units where a
+// white sequence of variance v has density v), so with the compensated gains
+//     E|W|^2 = sigma^2 (1/L) sum_k |Psi_f(k)|^2 (H_k^2 + H'_k^2) / (2 H_k^2)
+// which noise_gain() returns (per unit variance of x). The sum over the uncompensated filter at fs is
+// twice the full-rate one at fs_x (4 sqrt(pi) f / (eta0 fs)), so the half-rate gain equals the full-rate
+// gain at fs_x times 1 + H'^2 / H^2 = 1 + tan^4(pi f / fs_x) averaged over the row's band (2e-5 for
+// 1.1 kHz at fs_x = 51.2 kHz, 3 % for 1 kHz at 8 kHz).
+//
 // Real-time contract: all FFTW plans and buffers are made in the constructor; `transform`, `load` and
 // `row` allocate nothing provided the output has been sized once (Scalogram::resize keeps capacity).
 #pragma once
@@ -71,6 +89,11 @@ struct MorletCwtConfig {
   double truncation = 0.0;
   /// Measure FFTW plans (slower constructor, faster transforms) instead of estimating them.
   bool measure_plans = false;
+  /// The input is a half-rate copy y[m] = (x[2m-1] + 2 x[2m] + x[2m+1]) / 4 of a signal x sampled at
+  /// 2 sample_rate_hz (see the header comment, "Half-rate input"): the filter gains are divided by the
+  /// decimation filter's response H(f) = cos^2(pi f / (2 sample_rate_hz)), so |W| is the envelope of x,
+  /// and noise_gain() refers to white noise of x at 2 sample_rate_hz.
+  bool half_rate_121_input = false;
 };
 
 /// Wavelet coefficients, rows = analysis frequencies, columns = time. Row-major, owns its data.
@@ -152,6 +175,13 @@ class MorletCwt {
   struct Impl;
   std::unique_ptr<Impl> impl_;
 };
+
+/// Half-rate copy for half_rate_121_input: y[m] = (x[2m-1] + 2 x[2m] + x[2m+1]) / 4 for
+/// m < (x.size() + 1) / 2, with x taken as zero outside [0, x.size()) (as the transform does), written to
+/// y and, when y_float is not empty, in single precision to y_float (both of size >= (x.size() + 1) / 2).
+/// Only y[1 .. x.size() / 2 - 1] use in-range samples alone. Returns max |x| (the same pass reads every
+/// sample; the impact analyzer's peak check uses it).
+double decimate_half_121(std::span<const double> x, std::span<double> y, std::span<float> y_float);
 
 extern template class MorletCwt<double>;
 extern template class MorletCwt<float>;

@@ -28,7 +28,19 @@ ImpactStatus from_estimate(dsp::EstimateStatus s) {
   return ImpactStatus::fit_failed;
 }
 
+// Highest frequency the analysis reads: the top CWT row's kept band (band-limited truncation width
+// c = sqrt(2 ln 1e6) = 5.26 filter sds above it) or the ML band's top, whichever is higher.
+double analysis_top_hz(const ImpactAnalyzerConfig& cfg) {
+  const double c = std::sqrt(2.0 * std::log(1.0 / dsp::MorletCwtConfig::kBandLimitedTruncation));
+  const double f_hi = cfg.f_expected_hz * (1.0 + cfg.band_rel);
+  return std::max(f_hi * (1.0 + c / cfg.eta0), f_hi * (1.0 + cfg.ml_band_rel));
+}
+
 }  // namespace
+
+bool ImpactAnalyzer::decimates(const ImpactAnalyzerConfig& cfg, double fs) {
+  return analysis_top_hz(cfg) <= fs / 8.0;
+}
 
 ImpactAnalyzer::ImpactAnalyzer(const ImpactAnalyzerConfig& cfg, double fs) {
   fs_ = fs;
@@ -42,6 +54,7 @@ ImpactAnalyzer::ImpactAnalyzer(const ImpactAnalyzerConfig& cfg, double fs) {
   n_pre_ = static_cast<std::size_t>(std::llround(cfg.pretrigger_s * fs));
   n_win_ = static_cast<std::size_t>(std::llround(cfg.window_s * fs));
   n_ml_margin_ = static_cast<std::size_t>(std::ceil(0.0005 * fs));
+  const std::size_t full_len = n_win_ > n_ml_margin_ ? n_win_ - n_ml_margin_ : 0;  // full-rate ML segment
 
   const double lo = f_expected_ * (1.0 - band_rel_), hi = f_expected_ * (1.0 + band_rel_);
   const auto rows = std::max<std::size_t>(
@@ -54,16 +67,44 @@ ImpactAnalyzer::ImpactAnalyzer(const ImpactAnalyzerConfig& cfg, double fs) {
   cc.max_samples = max_samples();
   cc.band_limited = true;
   cwt_ = std::make_unique<dsp::MorletCwt<float>>(cc);
+  in_dec_ = 1;
+  // Half rate (header comment, step 0) when the rate bound holds and the copy keeps the full-rate
+  // grids: the CWT's column step (an even full-rate decimation) and the complete window's ML segment
+  // (an even length whose half the copy holds with the onset at the pretrigger), so that the same
+  // columns and DFT bins are analysed.
+  if (decimates(cfg, fs) && cwt_->decimation() % 2 == 0 && full_len % 2 == 0 &&
+      (n_pre_ + n_win_) / 2 >= (n_pre_ + n_ml_margin_ + 1) / 2 + full_len / 2) {
+    dsp::MorletCwtConfig hc = cc;
+    hc.sample_rate_hz = fs / 2.0;
+    hc.max_samples = (max_samples() + 1) / 2;
+    hc.half_rate_121_input = true;
+    auto half = std::make_unique<dsp::MorletCwt<float>>(hc);
+    if (2 * half->decimation() == cwt_->decimation()) {
+      cwt_ = std::move(half);
+      in_dec_ = 2;
+    }
+  }
+  fs_a_ = fs / static_cast<double>(in_dec_);
+  // CWT input length: the window, or its half-rate copy (ceil(n / 2) samples).
+  const std::size_t max_in = (max_samples() + in_dec_ - 1) / in_dec_;
   // The ridge follow-up asks for a row's noise gain at every column; noise_gain() integrates the
   // filter each time (measured: 46k instructions per impact), so the rows' gains are kept.
   row_gain_.resize(rows);
   for (std::size_t r = 0; r < rows; ++r) row_gain_[r] = cwt_->noise_gain(rows_hz_[r]);
-  const std::size_t max_cols = (max_samples() + cwt_->decimation() - 1) / cwt_->decimation() + 1;
+  // Rows within one filter sd (1/eta0 in ln f) of each other, for the ridge follow-up's stray and
+  // recovery tests (the same expression it evaluated per column before; with the stop test compared
+  // as power ratios, no logarithm per column: BM_AnalyzerRidgeLs 8.8 -> 8.4 us, results bit-identical).
+  near_.resize(rows * rows);
+  for (std::size_t r = 0; r < rows; ++r)
+    for (std::size_t q = 0; q < rows; ++q)
+      near_[r * rows + q] = std::abs(std::log(rows_hz_[r] / rows_hz_[q])) <= 1.0 / eta0_ ? 1 : 0;
+  const std::size_t max_cols = (max_in + cwt_->decimation() - 1) / cwt_->decimation() + 1;
   power_.assign(rows * max_cols, 0.0);
   w_.assign(max_cols, {});
   wf_.assign(max_cols, {});
   grid_.assign(rows * max_cols, {});
-  xf_.assign(max_samples(), 0.0f);
+  xf_.assign(max_in, 0.0f);
+  if (in_dec_ == 2) xd_.assign(max_in, 0.0);
   scratch_.assign(max_cols, 0.0);
   scratch2_.assign(max_cols, 0.0);
   row_median_.assign(rows, 0.0);
@@ -73,12 +114,19 @@ ImpactAnalyzer::ImpactAnalyzer(const ImpactAnalyzerConfig& cfg, double fs) {
   // lengths stay exact: rounding them to FFT-friendly sizes (1766 -> 1728 or 1536 at 51.2 kHz) was
   // measured to move replay-data estimates of misspecified cases by several percent (sim-second-mode
   // median |zeta error| 1.5 % -> 18 %), and the fitter's Goertzel bins do not need a fast FFT length.
-  const std::size_t full = n_win_ > n_ml_margin_ ? n_win_ - n_ml_margin_ : 0;
+  // At half rate the lengths are the full-rate ones halved (copy samples): the complete window's
+  // full_len / 2 (883 at 51.2 kHz) fits the copy samples a window with the onset at the pretrigger
+  // holds, floor((n_pre + n_win) / 2) - ceil((n_pre + margin) / 2) (analyze(), step 4), and gives the
+  // full-rate DFT bins; the shorter ones (cut windows) round down by half a sample where the full-rate
+  // length is odd. A window whose onset has the other parity (only at a stream start) holds one copy
+  // sample less and takes the next shorter fitter.
+  const std::size_t full = full_len;
+  const std::size_t min_len = 64 / in_dec_;
   for (std::size_t k = 1; k <= 8; ++k) {
-    const std::size_t len = full * k / 8;
-    if (len < 64 || (!fitter_len_.empty() && len == fitter_len_.back())) continue;
+    const std::size_t len = full * k / 8 / in_dec_;
+    if (len < min_len || (!fitter_len_.empty() && len == fitter_len_.back())) continue;
     fitter_len_.push_back(len);
-    fitters_.push_back(std::make_unique<dsp::SpectralModeFitter>(len, fs));
+    fitters_.push_back(std::make_unique<dsp::SpectralModeFitter>(len, fs_a_));
   }
 }
 
@@ -103,19 +151,25 @@ ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
 
   // Peak and clipping in one pass that also makes the CWT's single-precision copy; four running
   // maxima (one is a serial chain of compare-selects: measured 2 % of the analysis).
+  // At half rate the same pass makes the copy (dsp::decimate_half_121 returns max |x|).
+  const std::size_t n_a = (n + in_dec_ - 1) / in_dec_;  // CWT input samples
   double pk[4] = {0.0, 0.0, 0.0, 0.0};
-  std::size_t i = 0;
-  for (; i + 4 <= n; i += 4) {
-    for (std::size_t j = 0; j < 4; ++j) {
-      const double a = std::abs(x[i + j]);
-      pk[j] = a > pk[j] ? a : pk[j];
-      xf_[i + j] = static_cast<float>(x[i + j]);
+  if (in_dec_ == 1) {
+    std::size_t i = 0;
+    for (; i + 4 <= n; i += 4) {
+      for (std::size_t j = 0; j < 4; ++j) {
+        const double a = std::abs(x[i + j]);
+        pk[j] = a > pk[j] ? a : pk[j];
+        xf_[i + j] = static_cast<float>(x[i + j]);
+      }
     }
-  }
-  for (; i < n; ++i) {
-    const double a = std::abs(x[i]);
-    pk[0] = a > pk[0] ? a : pk[0];
-    xf_[i] = static_cast<float>(x[i]);
+    for (; i < n; ++i) {
+      const double a = std::abs(x[i]);
+      pk[0] = a > pk[0] ? a : pk[0];
+      xf_[i] = static_cast<float>(x[i]);
+    }
+  } else {
+    pk[0] = dsp::decimate_half_121(x.first(n), std::span<double>(xd_.data(), n_a), std::span<float>(xf_.data(), n_a));
   }
   const double peak = std::max(std::max(pk[0], pk[1]), std::max(pk[2], pk[3]));
   const bool clipped = peak >= clip_;
@@ -139,8 +193,8 @@ ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
   if (!(noise_var > 1e-12 * peak_sq)) noise_var = 1e-12 * peak_sq;
   if (!(noise_var > 0)) return finish(ImpactStatus::low_snr);  // all zero
 
-  // 1. CWT rows over the band.
-  cwt_->load(std::span<const float>(xf_.data(), n));
+  // 1. CWT rows over the band (at half rate on the copy y[m] ~ x[2m]: column c stays at t = c dt).
+  cwt_->load(std::span<const float>(xf_.data(), n_a));
   const std::size_t cols = cwt_->columns();
   const double dt = cwt_->time_step_s();
   const std::size_t rows = rows_hz_.size();
@@ -212,6 +266,7 @@ ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
     const auto width_cols = std::max<std::size_t>(1, static_cast<std::size_t>(std::ceil(kernel_s / dt)));
     auto raw = [&](std::size_t r, std::size_t c) { return pw(r, c) + row_median_[r]; };
     double early_decay = NAN;  // ln power per column over the first kernel width after 2 widths
+    double fast_ratio = NAN;   // exp(2 early_decay + 0.4): the per-column power ratio of a stop
     std::size_t r = r0;
     for (std::size_t c = c0; c < last_col; ++c) {
       if (c > c0) {
@@ -221,16 +276,18 @@ ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
         r = best;
       }
       const double floor = 100.0 * (noise_var * row_gain_[r]);
-      if (c == c0 + 3 * width_cols && raw(r, c) > 0)
+      if (c == c0 + 3 * width_cols && raw(r, c) > 0) {
         early_decay = std::log(raw(r0, c0 + 2 * width_cols) / raw(r, c)) / static_cast<double>(width_cols);
+        fast_ratio = std::exp(2.0 * early_decay + 0.4);
+      }
       if (!ridge_lost && std::isfinite(early_decay) && early_decay > 0 && c > c0 + 3 * width_cols &&
           c + 1 < last_col && raw(r, c + 1) >= floor) {
-        const double fast = 2.0 * early_decay + 0.4;
-        if (std::log(raw(r, c - 1) / raw(r, c)) > fast && std::log(raw(r, c) / raw(r, c + 1)) > fast) {
+        // ln(ratio) > 2 early_decay + 0.4, compared as ratios (no logarithm per column).
+        if (raw(r, c - 1) / raw(r, c) > fast_ratio && raw(r, c) / raw(r, c + 1) > fast_ratio) {
           bool recovers = false;
           for (std::size_t c2 = c + 2; c2 < last_col && !recovers; ++c2)
             for (std::size_t r2 = 0; r2 < rows; ++r2)
-              if (std::abs(std::log(rows_hz_[r2] / rows_hz_[r0])) <= 1.0 / eta0_ && raw(r2, c2) >= raw(r, c)) {
+              if (near_[r2 * rows + r0] && raw(r2, c2) >= raw(r, c)) {
                 recovers = true;
                 break;
               }
@@ -242,7 +299,7 @@ ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
         }
       }
       if (pw(r, c) < floor) break;  // 20 dB: the strong part of the decay
-      if (r == 0 || r + 1 == rows || std::abs(std::log(rows_hz_[r] / rows_hz_[r0])) > 1.0 / eta0_) {
+      if (r == 0 || r + 1 == rows || !near_[r * rows + r0]) {
         if (!ridge_lost && pw(r, c) <= kEndedPowerDrop * pw(r0, c0)) {
           ridge_end = c;
           ridge_ended = true;
@@ -282,11 +339,18 @@ ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
     f_d = f_ridge;
     f_sd = NAN;
   }
-  row.f_row_hz = f_d;
-  row.phase_reference_hz = f_d;
-  row.noise_power = row_noise(f_d);
-  cwt_row(f_d);
-  ew = dsp::choose_window(row, env);
+  // The envelope row at f_d. Within 2 % of a filter sd (f / eta0) of f_ridge the row at f_ridge stands
+  // for it: the Gaussian filter's gain differs by exp(-(eta0 df / f)^2 / 2) >= 0.9998, a constant
+  // factor of the envelope (no effect on its decay), so the row, its window and its noise stay those
+  // of f_ridge and only the damping conversion uses f_d. (bench_pipeline at 51.2 kHz, 1 % noise:
+  // |f_d - f_ridge| = 1.1-1.8 % of f / eta0.)
+  if (!(std::abs(f_d - f_ridge) <= 0.02 * f_ridge / eta0_)) {
+    row.f_row_hz = f_d;
+    row.phase_reference_hz = f_d;
+    row.noise_power = row_noise(f_d);
+    cwt_row(f_d);
+    ew = dsp::choose_window(row, env);
+  }
   // The two-point estimate (Eq. 17-19) only when it is the selected method: nothing else uses it.
   dsp::DampingEstimate two;
   if (method_ == dsp::DampingMethod::two_point) two = dsp::estimate_two_point(row, ew, f_d);
@@ -305,13 +369,23 @@ ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
   std::size_t seg_end = n;
   if (ridge_ended) {
     const auto back = static_cast<std::size_t>(std::ceil(2.0 * kernel_s * fs_));
-    const std::size_t stop = ridge_end * cwt_->decimation();
+    const std::size_t stop = ridge_end * cwt_->decimation() * in_dec_;
     seg_end = std::min(n, stop > back ? stop - back : 0);
   }
   if (method_ == dsp::DampingMethod::ml && seg0 < seg_end) {
+    // At half rate: copy samples m from the first at or after seg0 (2m >= seg0; its first tap is at
+    // most one sample, 20 us at 51.2 kHz, before the margin's end) to the last whose taps lie in the
+    // window (2m + 1 < seg_end): m0 = ceil(seg0 / 2), m_end = floor(seg_end / 2). The segment's sample
+    // m is at t = 2m / fs like x[2m].
+    std::size_t a0 = seg0, a_end = seg_end;
+    if (in_dec_ == 2) {
+      a0 = (seg0 + 1) / 2;
+      a_end = seg_end / 2;
+    }
     std::size_t pick = fitter_len_.size();
-    for (std::size_t k = 0; k < fitter_len_.size(); ++k)
-      if (fitter_len_[k] <= seg_end - seg0) pick = k;
+    if (a0 < a_end)
+      for (std::size_t k = 0; k < fitter_len_.size(); ++k)
+        if (fitter_len_[k] <= a_end - a0) pick = k;
     if (pick < fitter_len_.size()) {
       const double zeta0 = (std::isfinite(rls.zeta) && rls.zeta > 1e-4 && rls.zeta < 0.5) ? rls.zeta : 0.02;
       const dsp::ModeGuess guess{f_d, zeta0};
@@ -320,17 +394,26 @@ ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
       // +-12 % of 860 Hz, i.e. 10 values for 4 mode + 4 residual parameters). Widening the band
       // would let stationary lines in (measured: a 640 Hz line then biases ok events by 20 %);
       // instead such segments keep one residual term (a constant), and at least +-3 bins.
-      const double bin_hz = fs_ / static_cast<double>(fitter_len_[pick]);
+      const double bin_hz = fs_a_ / static_cast<double>(fitter_len_[pick]);
       const double half = std::max(ml_band_rel_ * f_d, 3.0 * bin_hz);
       mo.f_lo_hz = std::max(f_d - half, 1.0);
-      mo.f_hi_hz = std::min(f_d + half, 0.4999 * fs_);
+      mo.f_hi_hz = std::min(f_d + half, 0.4999 * fs_a_);
       mo.residual_terms = 2.0 * half / bin_hz >= 9.0 ? 2 : 1;
       dsp::MlFitResult& fit = ml_result_;
-      fitters_[pick]->fit(x.subspan(seg0, fitter_len_[pick]), std::span<const dsp::ModeGuess>(&guess, 1), mo, fit);
+      const std::span<const double> seg = in_dec_ == 2 ? std::span<const double>(xd_).subspan(a0, fitter_len_[pick])
+                                                       : x.subspan(seg0, fitter_len_[pick]);
+      fitters_[pick]->fit(seg, std::span<const dsp::ModeGuess>(&guess, 1), mo, fit);
       if (!fit.modes.empty()) {
         ml = fit.modes.front();
-        ml.window_start_s += static_cast<double>(seg0) / fs_;
-        ml.window_end_s += static_cast<double>(seg0) / fs_;
+        ml.window_start_s += static_cast<double>(a0) / fs_a_;
+        ml.window_end_s += static_cast<double>(a0) / fs_a_;
+        // The copy's mode amplitude is H(f) = cos^2(pi f / fs) times the window's: the taps' response
+        // to the damped mode z = exp((-sigma + i omega) / fs) is (z + 2 + 1/z) / 4 = cosh^2(ln z / 2),
+        // of modulus cos^2(omega / (2 fs)) + sinh^2(sigma / (2 fs)) (relative excess ~1e-7).
+        if (in_dec_ == 2 && std::isfinite(ml.f_hz)) {
+          const double c = std::cos(std::numbers::pi * ml.f_hz / fs_);
+          ml.amplitude /= c * c;
+        }
         ml.snr_db = snr_db;
       }
     }

@@ -1,6 +1,34 @@
 // Analysis of one impact-triggered window: band CWT -> ridge near the expected natural frequency ->
 // frequency and damping with the foundation's estimators -> status.
 //
+//  0. Half-rate copy (when the rate allows it): steps 1-4 read only frequencies up to the top row's
+//     kept band, f_hi (1 + c / eta0) with f_hi = f_expected (1 + band_rel) and c = 5.26 (the
+//     band-limited truncation, 1e-6), and the ML band's top f_hi (1 + ml_band_rel), which is lower.
+//     When that is at most fs / 8 (1.95 kHz for the defaults: rates >= 15.6 kHz), the CWT and the ML
+//     fit can run on y[m] = (x[2m-1] + 2 x[2m] + x[2m+1]) / 4 (dsp::decimate_half_121; y[m] is at the
+//     time of x[2m]) at fs / 2. Its response H(f) = cos^2(pi f / fs) is >= 0.85 up to fs / 8 and is
+//     divided out of the CWT's filter gains (MorletCwtConfig::half_rate_121_input, so |W| stays the
+//     envelope of x); the image folded onto f from fs/2 - f is attenuated by sin^2(pi f / fs)
+//     (<= 0.15 at fs / 8 where the Gaussian is already 1e-6, 2.8e-3 at 860 Hz and 51.2 kHz). The
+//     rows' noise gains refer to white noise of x at fs (the row noise E|W|^2 = gain * sigma^2 is
+//     unchanged: the copy's in-band noise is H^2 sigma^2 / 2 at fs / 2, the compensated half-rate
+//     filter's sum of squares is 2 / H^2 times the full-rate one). The ML fit sees the same damped
+//     sinusoid (the taps of a damped mode z give (z + 2 + 1/z) / 4 times it: same sigma and omega) on the
+//     copy samples from the segment start on, with the same bin spacing (N/2 samples at fs/2), its
+//     amplitude divided by H(f). The peak/clipping check reads the full-rate samples.
+//     The copy is used only when it keeps the full-rate grids: an even CWT decimation (the same column
+//     times) and an even complete-window ML segment (the same DFT bins). The estimates of misspecified
+//     decays depend on both grids: at 25.6 kHz (decimation 15, segment 883 samples) the copy's grids
+//     (decimation 7, 441 samples) moved replay-data sim-second-mode's median |zeta error| from 1.5 % to
+//     20 % and sim-transmission-error's from 0.6 % to 1.0 %, and made a 20 dB sim-nuisance event
+//     ok with a 33 % error. At 51.2 kHz (30 -> 15, 1766 -> 883) the estimates agree with the full-rate
+//     ones to 1e-6 (sim-tacho). Otherwise (25.6 kHz, 8 kHz, ...) everything runs at full rate.
+//     Measured (bench_pipeline BM_AnalyzerMl, 249 impacts at 51.2 kHz, with the CWT's half-length
+//     forward FFT): 14.9-16.5 -> 12.85 us per impact (ridge-ls 9.8-10.3 -> 8.9 us); the copy with the
+//     peak check 0.8 us, the CWT forward FFT 2.1 -> 1.0 us, the ML Goertzel bins about half. With the
+//     log-free ridge follow-up (step 2) and the shared f_ridge / f_d row (step 3): 12.0 us (ridge-ls
+//     8.0 us). Not taken: 2 eta0 rows per unit ln f (14 -> 10 rows, 11.6 us) moved sim-second-mode's
+//     median |zeta error| from 1.5 % to 26 %.
 //  1. Band-limited Morlet CWT (core/dsp/morlet_cwt.hpp, Eq. 1-7 with the amplitude normalisation that
 //     makes |W| the envelope of Eq. 12) of the window [onset - pretrigger, onset + window) on rows
 //     log-spaced over f_expected (1 +- band_rel), 3 eta0 rows per unit of ln f (adjacent rows overlap
@@ -24,11 +52,13 @@
 //     no envelope window between the edge skips (10 kernel widths, 13 ms at 860 Hz), the status is
 //     too_short.
 //  3. Damped frequency from the phase slope of W (unbiased, README "Frequency"; rows are decimated, so
-//     the phase is unwrapped around the row frequency). Envelope row at f_d; the foundation's window
-//     choice, two-point (Eq. 17-19) and ridge least-squares estimates.
+//     the phase is unwrapped around the row frequency). Envelope row at f_d (the f_ridge row itself
+//     when f_d is within 2 % of a filter sd of it: a constant envelope factor >= 0.9998); the
+//     foundation's window choice, two-point (Eq. 17-19) and ridge least-squares estimates.
 //  4. ml (default): SpectralModeFitter with one mode in f_d (1 +- ml_band_rel, default 12 %) on the segment from
 //     onset + 0.5 ms (the 0.15 ms force pulse and the onset's uncertainty are over) to the end of the
-//     usable window, started from the ridge-LS estimate. The in-band fit ignores the mesh lines at
+//     usable window (half rate: the copy's samples, fitters made with (len / 2, fs / 2)), started from
+//     the ridge-LS estimate. The in-band fit ignores the mesh lines at
 //     550/1100 Hz of the paper rig (outside 860 Hz +- 12 %) and hum. Segment lengths are quantised to
 //     eighths of the full window so the FFT plans can be made in the constructor.
 //  5. Cross-check of ml against ridge-ls (as in `ridgewatch modes`): more than 4 combined standard
@@ -81,19 +111,30 @@ class ImpactAnalyzer {
   std::size_t max_samples() const { return n_pre_ + n_win_; }
   std::size_t pretrigger_samples() const { return n_pre_; }
   std::size_t window_samples() const { return n_win_; }
+  /// 2 when the CWT and the ML fit run on the half-rate copy of the window, 1 at full rate.
+  std::size_t input_decimation() const { return in_dec_; }
+  /// The rate bound of the half-rate copy: the highest frequency the analysis reads (the top CWT row's
+  /// kept band, f_hi (1 + c / eta0), c = 5.26 the band-limited truncation width, and the ML band's top)
+  /// is at most fs / 8. The constructor also requires the copy to keep the full-rate grids (header
+  /// comment, step 0); input_decimation() tells the outcome.
+  static bool decimates(const ImpactAnalyzerConfig& config, double sample_rate_hz);
 
   /// Analyses one window; the event's alarm state is left default (the caller adds it).
   ImpactEvent analyze(const ImpactWindow& window);
 
  private:
   double fs_ = 0;
+  double fs_a_ = 0;                              // analysis rate: fs_ / in_dec_
+  std::size_t in_dec_ = 1;                       // 2: CWT and ML fit on the half-rate copy
   double f_expected_ = 0, band_rel_ = 0, ml_band_rel_ = 0, eta0_ = 7, min_snr_db_ = 20, clip_ = 0.999;
   dsp::DampingMethod method_ = dsp::DampingMethod::ml;
   std::size_t n_pre_ = 0, n_win_ = 0, n_ml_margin_ = 0;
   std::vector<double> rows_hz_;
   std::vector<double> row_gain_;                 // cwt_->noise_gain(rows_hz_[r]), computed once
+  std::vector<std::uint8_t> near_;               // rows x rows: |ln(f_r / f_q)| <= 1 / eta0
   std::unique_ptr<dsp::MorletCwt<float>> cwt_;
-  std::vector<float> xf_;                        // the window in single precision (CWT input)
+  std::vector<float> xf_;                        // the CWT input (window or half-rate copy), float
+  std::vector<double> xd_;                       // the half-rate copy in double (ML input)
   std::vector<std::complex<float>> wf_;          // one row as computed
   std::vector<std::complex<float>> grid_;        // the grid rows (rows x cols)
   std::vector<double> power_;                    // rows x cols |W|^2
