@@ -115,7 +115,7 @@ void run_analyzer(benchmark::State& state, ridgewatch::dsp::DampingMethod method
       end = found[i + 1].sample_index - guard;
       w.end = rp::WindowEnd::next_impact;
     }
-    w.samples = std::span<const double>(x.data() + w0, end - w0);
+    w.samples = std::span<const float>(xf.data() + w0, end - w0);
     w.onset_offset = a.pretrigger_samples();
     w.onset_index = o;
     double ms = 0;

@@ -301,8 +301,9 @@ struct AnalyzerFixture : ::testing::Test {
   ImpactEvent analyze(const std::vector<double>& x, double noise_sd, WindowEnd end = WindowEnd::complete,
                       bool spike = false) {
     ImpactAnalyzer a(cfg.analyzer, kFs);
+    const std::vector<float> xf(x.begin(), x.end());  // the analyzer takes samples as acquired (float)
     ImpactWindow w;
-    w.samples = x;
+    w.samples = xf;
     w.onset_offset = a.pretrigger_samples();
     w.noise_var = noise_sd * noise_sd;
     w.end = end;
@@ -444,8 +445,9 @@ TEST(ImpactAnalyzerHalfRate, NoiseFreeDecayIsExactOnBothPaths) {
       const double t = static_cast<double>(k - pre) / fs;
       x[k] = 0.5 * std::exp(-sigma * t) * std::sin(omega * t);
     }
+    const std::vector<float> xf(x.begin(), x.end());  // the analyzer takes samples as acquired (float)
     ImpactWindow w;
-    w.samples = x;
+    w.samples = xf;
     w.onset_offset = pre;
     w.noise_var = 1e-14;
     const ImpactEvent e = a.analyze(w);
@@ -482,8 +484,9 @@ TEST(ImpactAnalyzerHalfRate, FullRatePathWithNoise) {
       x[k] += 0.5 * std::exp(-sigma * t) * std::sin(omega * t);
     }
   }
+  const std::vector<float> xf(x.begin(), x.end());  // the analyzer takes samples as acquired (float)
   ImpactWindow w;
-  w.samples = x;
+  w.samples = xf;
   w.onset_offset = pre;
   w.noise_var = 0.005 * 0.005;
   const ImpactEvent e = a.analyze(w);

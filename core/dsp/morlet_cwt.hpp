@@ -180,8 +180,10 @@ class MorletCwt {
 /// m < (x.size() + 1) / 2, with x taken as zero outside [0, x.size()) (as the transform does), written to
 /// y and, when y_float is not empty, in single precision to y_float (both of size >= (x.size() + 1) / 2).
 /// Only y[1 .. x.size() / 2 - 1] use in-range samples alone. Returns max |x| (the same pass reads every
-/// sample; the impact analyzer's peak check uses it).
+/// sample; the impact analyzer's peak check uses it). Float input is widened to double sample by sample
+/// (exactly), so both overloads give the same y for the same values.
 double decimate_half_121(std::span<const double> x, std::span<double> y, std::span<float> y_float);
+double decimate_half_121(std::span<const float> x, std::span<double> y, std::span<float> y_float);
 
 extern template class MorletCwt<double>;
 extern template class MorletCwt<float>;

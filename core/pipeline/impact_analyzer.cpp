@@ -103,8 +103,8 @@ ImpactAnalyzer::ImpactAnalyzer(const ImpactAnalyzerConfig& cfg, double fs) {
   w_.assign(max_cols, {});
   wf_.assign(max_cols, {});
   grid_.assign(rows * max_cols, {});
-  xf_.assign(max_in, 0.0f);
-  if (in_dec_ == 2) xd_.assign(max_in, 0.0);
+  if (in_dec_ == 2) xf_.assign(max_in, 0.0f);
+  xd_.assign(max_in, 0.0);
   scratch_.assign(max_cols, 0.0);
   scratch2_.assign(max_cols, 0.0);
   row_median_.assign(rows, 0.0);
@@ -144,34 +144,33 @@ ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
   ImpactEvent ev;
   ev.sample_index = win.onset_index;
   ev.t_s = static_cast<double>(win.onset_index) / fs_;
-  const std::span<const double> x = win.samples;
+  const std::span<const float> x = win.samples;
   const std::size_t n = std::min(x.size(), max_samples());
   const std::size_t o = win.onset_offset;
   const double onset_s = static_cast<double>(o) / fs_;
 
-  // Peak and clipping in one pass that also makes the CWT's single-precision copy; four running
-  // maxima (one is a serial chain of compare-selects: measured 2 % of the analysis).
-  // At half rate the same pass makes the copy (dsp::decimate_half_121 returns max |x|).
+  // Peak and clipping. At full rate the window itself is the CWT input: one pass of four running
+  // maxima (one is a serial chain of compare-selects: measured 2 % of the analysis). At half rate the
+  // pass that makes the copy also returns max |x| (dsp::decimate_half_121).
   const std::size_t n_a = (n + in_dec_ - 1) / in_dec_;  // CWT input samples
-  double pk[4] = {0.0, 0.0, 0.0, 0.0};
+  float pk[4] = {0.0f, 0.0f, 0.0f, 0.0f};
   if (in_dec_ == 1) {
     std::size_t i = 0;
     for (; i + 4 <= n; i += 4) {
       for (std::size_t j = 0; j < 4; ++j) {
-        const double a = std::abs(x[i + j]);
+        const float a = std::abs(x[i + j]);
         pk[j] = a > pk[j] ? a : pk[j];
-        xf_[i + j] = static_cast<float>(x[i + j]);
       }
     }
     for (; i < n; ++i) {
-      const double a = std::abs(x[i]);
+      const float a = std::abs(x[i]);
       pk[0] = a > pk[0] ? a : pk[0];
-      xf_[i] = static_cast<float>(x[i]);
     }
   } else {
-    pk[0] = dsp::decimate_half_121(x.first(n), std::span<double>(xd_.data(), n_a), std::span<float>(xf_.data(), n_a));
+    pk[0] = static_cast<float>(
+        dsp::decimate_half_121(x.first(n), std::span<double>(xd_.data(), n_a), std::span<float>(xf_.data(), n_a)));
   }
-  const double peak = std::max(std::max(pk[0], pk[1]), std::max(pk[2], pk[3]));
+  const double peak = static_cast<double>(std::max(std::max(pk[0], pk[1]), std::max(pk[2], pk[3])));
   const bool clipped = peak >= clip_;
   const double peak_sq = peak * peak;
   auto finish = [&](ImpactStatus computed) {
@@ -194,7 +193,7 @@ ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
   if (!(noise_var > 0)) return finish(ImpactStatus::low_snr);  // all zero
 
   // 1. CWT rows over the band (at half rate on the copy y[m] ~ x[2m]: column c stays at t = c dt).
-  cwt_->load(std::span<const float>(xf_.data(), n_a));
+  cwt_->load(in_dec_ == 2 ? std::span<const float>(xf_.data(), n_a) : x.first(n));
   const std::size_t cols = cwt_->columns();
   const double dt = cwt_->time_step_s();
   const std::size_t rows = rows_hz_.size();
@@ -400,8 +399,9 @@ ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
       mo.f_hi_hz = std::min(f_d + half, 0.4999 * fs_a_);
       mo.residual_terms = 2.0 * half / bin_hz >= 9.0 ? 2 : 1;
       dsp::MlFitResult& fit = ml_result_;
-      const std::span<const double> seg = in_dec_ == 2 ? std::span<const double>(xd_).subspan(a0, fitter_len_[pick])
-                                                       : x.subspan(seg0, fitter_len_[pick]);
+      if (in_dec_ == 1)  // the fitter works in double: widen the segment (exact)
+        for (std::size_t i = 0; i < fitter_len_[pick]; ++i) xd_[a0 + i] = static_cast<double>(x[a0 + i]);
+      const std::span<const double> seg = std::span<const double>(xd_).subspan(a0, fitter_len_[pick]);
       fitters_[pick]->fit(seg, std::span<const dsp::ModeGuess>(&guess, 1), mo, fit);
       if (!fit.modes.empty()) {
         ml = fit.modes.front();

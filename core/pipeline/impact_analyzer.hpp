@@ -92,7 +92,9 @@ enum class WindowEnd : std::uint8_t {
 };
 
 struct ImpactWindow {
-  std::span<const double> samples;  ///< from onset - pretrigger (or the segment start) on
+  /// From onset - pretrigger (or the segment start) on, in single precision as acquired (the
+  /// analysis widens the samples it needs in double: the ML segment, the half-rate copy).
+  std::span<const float> samples;
   std::size_t onset_offset = 0;     ///< index of the onset inside `samples`
   WindowEnd end = WindowEnd::complete;
   double noise_var = NAN;           ///< white-equivalent noise variance of the samples (from the gaps)
@@ -133,8 +135,8 @@ class ImpactAnalyzer {
   std::vector<double> row_gain_;                 // cwt_->noise_gain(rows_hz_[r]), computed once
   std::vector<std::uint8_t> near_;               // rows x rows: |ln(f_r / f_q)| <= 1 / eta0
   std::unique_ptr<dsp::MorletCwt<float>> cwt_;
-  std::vector<float> xf_;                        // the CWT input (window or half-rate copy), float
-  std::vector<double> xd_;                       // the half-rate copy in double (ML input)
+  std::vector<float> xf_;                        // the half-rate copy in float (CWT input at half rate)
+  std::vector<double> xd_;                       // the ML input in double: half-rate copy or the segment
   std::vector<std::complex<float>> wf_;          // one row as computed
   std::vector<std::complex<float>> grid_;        // the grid rows (rows x cols)
   std::vector<double> power_;                    // rows x cols |W|^2

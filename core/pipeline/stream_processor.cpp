@@ -104,7 +104,7 @@ struct StreamProcessor::Impl {
 
   std::vector<float> raw;  // raw samples by absolute index & mask
   std::uint64_t mask = 0;
-  std::vector<double> window_buf;
+  std::vector<float> window_buf;  // the window handed to the analyzer (a contiguous copy of the ring)
   bool started = false, flushed = false;
   std::uint64_t seg_start = 0, next = 0;
   std::size_t wait_after = 0;    // samples past a window's end before it is final
@@ -140,7 +140,7 @@ struct StreamProcessor::Impl {
     const std::uint64_t ring = std::bit_ceil(2 * (analyzer.max_samples() + wait_after + noise_span + 64));
     raw.assign(ring, 0.0f);
     mask = ring - 1;
-    window_buf.assign(analyzer.max_samples(), 0.0);
+    window_buf.assign(analyzer.max_samples(), 0.0f);
   }
 
   Pending& pending_at(std::size_t k) { return pending[(p_head + k) % kMaxPending]; }
@@ -220,7 +220,7 @@ struct StreamProcessor::Impl {
     std::copy(raw.begin(), raw.begin() + static_cast<std::ptrdiff_t>(n - first),
               window_buf.begin() + static_cast<std::ptrdiff_t>(first));
     ImpactWindow win;
-    win.samples = std::span<const double>(window_buf.data(), n);
+    win.samples = std::span<const float>(window_buf.data(), n);
     win.onset_offset = static_cast<std::size_t>(o - w0);
     win.end = kind;
     win.noise_var = p.noise_var;
