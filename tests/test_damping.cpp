@@ -323,6 +323,38 @@ TEST(MlFit, GoertzelBinsMatchTheFft) {
   EXPECT_NEAR(b.modes[0].f_hz / 861.3, 1.0, 1e-11);
 }
 
+// A fitter told that its fits use few bins (max_bins) makes no FFT plan: a narrow fit gives exactly the
+// same result as the default fitter's (both take the Goertzel path), and a wide fit beyond max_bins
+// still works, through the Goertzel bins, and agrees with the FFT path to the tolerance argued above.
+TEST(MlFit, FitterWithoutFftPlanUsesGoertzelForEveryBand) {
+  const double fs = 51200.0;
+  const std::size_t n = 1766;
+  const auto x = damped_sum({{0.7, 861.3, 0.024, 0.4}}, fs, n);
+  SpectralModeFitter with_fft(n, fs);
+  SpectralModeFitter goertzel_only(n, fs, 8);  // 8 <= 2 log2(1766) = 21.6: no plan
+  const ModeGuess g{858.0, 0.02};
+  MlFitOptions narrow;
+  narrow.f_lo_hz = 861.3 * 0.88;
+  narrow.f_hi_hz = 861.3 * 1.12;
+  narrow.residual_terms = 0;
+  MlFitOptions wide = narrow;
+  wide.f_lo_hz = 400;
+  wide.f_hi_hz = 1400;
+  const MlFitResult a = with_fft.fit(x, std::span<const ModeGuess>(&g, 1), narrow);
+  const MlFitResult b = goertzel_only.fit(x, std::span<const ModeGuess>(&g, 1), narrow);
+  ASSERT_EQ(a.modes.size(), 1u);
+  ASSERT_EQ(b.modes.size(), 1u);
+  EXPECT_EQ(a.modes[0].zeta, b.modes[0].zeta);
+  EXPECT_EQ(a.modes[0].f_hz, b.modes[0].f_hz);
+  const MlFitResult c = with_fft.fit(x, std::span<const ModeGuess>(&g, 1), wide);
+  const MlFitResult d = goertzel_only.fit(x, std::span<const ModeGuess>(&g, 1), wide);
+  ASSERT_EQ(d.modes.size(), 1u);
+  EXPECT_EQ(d.bins, c.bins);
+  EXPECT_EQ(d.modes[0].status, EstimateStatus::ok);
+  EXPECT_NEAR(d.modes[0].zeta / c.modes[0].zeta, 1.0, 1e-9);
+  EXPECT_NEAR(d.modes[0].f_hz / c.modes[0].f_hz, 1.0, 1e-11);
+}
+
 // select_kth against std::nth_element (the reference it replaces in the impact analyzer): the same
 // value exactly (an order statistic is an element of the input, so there is no rounding), on random
 // rows, rows with ties, monotone rows (the decaying-envelope case its pivot rule is chosen for), and

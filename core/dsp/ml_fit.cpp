@@ -460,7 +460,14 @@ struct SpectralModeFitter::Impl {
   }
 };
 
-SpectralModeFitter::SpectralModeFitter(std::size_t segment_samples, double sample_rate_hz)
+namespace {
+// fit(): this many bins or fewer are evaluated by the Goertzel recursion, more by the FFT.
+bool goertzel_is_cheaper(std::size_t bins, std::size_t n) {
+  return static_cast<double>(bins) <= 2.0 * std::log2(static_cast<double>(n));
+}
+}  // namespace
+
+SpectralModeFitter::SpectralModeFitter(std::size_t segment_samples, double sample_rate_hz, std::size_t max_bins)
     : impl_(std::make_unique<Impl>()) {
   if (segment_samples < 16 || segment_samples > (std::size_t{1} << 28))
     throw std::invalid_argument("SpectralModeFitter: segment_samples must be in [16, 2^28]");
@@ -470,12 +477,15 @@ SpectralModeFitter::SpectralModeFitter(std::size_t segment_samples, double sampl
   impl_->fs = sample_rate_hz;
   {
     std::lock_guard<std::mutex> lock(fftw_planner_mutex());
-    impl_->in = fftw_alloc_real(segment_samples);
-    impl_->out = fftw_alloc_complex(segment_samples / 2 + 1);
-    if (!impl_->in || !impl_->out) throw std::bad_alloc();
-    impl_->plan = fftw_plan_dft_r2c_1d(static_cast<int>(segment_samples), impl_->in, impl_->out,
-                                       FFTW_ESTIMATE);
-    if (!impl_->plan) throw std::runtime_error("SpectralModeFitter: FFTW could not make a plan");
+    impl_->out = fftw_alloc_complex(segment_samples / 2 + 1);  // also the Goertzel bins' output
+    if (!impl_->out) throw std::bad_alloc();
+    if (max_bins == 0 || !goertzel_is_cheaper(max_bins, segment_samples)) {
+      impl_->in = fftw_alloc_real(segment_samples);
+      if (!impl_->in) throw std::bad_alloc();
+      impl_->plan = fftw_plan_dft_r2c_1d(static_cast<int>(segment_samples), impl_->in, impl_->out,
+                                         FFTW_ESTIMATE);
+      if (!impl_->plan) throw std::runtime_error("SpectralModeFitter: FFTW could not make a plan");
+    }
   }
   impl_->tw.resize(2 * segment_samples);
   for (std::size_t m = 0; m < segment_samples; ++m) {
@@ -484,12 +494,12 @@ SpectralModeFitter::SpectralModeFitter(std::size_t segment_samples, double sampl
     impl_->tw[2 * m + 1] = t.imag();
   }
   // Room for every bin, so that fits never reallocate (real-time callers).
-  const std::size_t max_bins = segment_samples / 2 + 1;
+  const std::size_t all_bins = segment_samples / 2 + 1;
   Problem& p = impl_->p;
-  p.data.reserve(max_bins);
-  p.w.reserve(max_bins);
-  p.u.reserve(max_bins);
-  p.basis.reserve(4 * max_bins);
+  p.data.reserve(all_bins);
+  p.w.reserve(all_bins);
+  p.u.reserve(all_bins);
+  p.basis.reserve(4 * all_bins);
   p.states.reserve(kMaxSmall / kPerMode);
 }
 
@@ -549,7 +559,7 @@ void SpectralModeFitter::fit(std::span<const double> segment, std::span<const Mo
   // awkward length (1766 = 2 * 883: 209k instructions per FFTW ESTIMATE transform); many bins
   // (`ridgewatch modes`: thousands) go through the FFT.
   const std::size_t n_bins = k_hi - k_lo + 1;
-  if (static_cast<double>(n_bins) <= 2.0 * std::log2(static_cast<double>(im.n))) {
+  if (goertzel_is_cheaper(n_bins, im.n) || !im.plan) {
     goertzel_bins(segment.data(), im.n, im.tw.data(), k_lo, n_bins, im.out);
   } else {
     std::copy(segment.begin(), segment.end(), im.in);

@@ -45,7 +45,11 @@ struct MlFitResult {
 /// Plans an FFT for segments of exactly `segment_samples` samples; reusable for many segments.
 class SpectralModeFitter {
  public:
-  SpectralModeFitter(std::size_t segment_samples, double sample_rate_hz);
+  /// max_bins > 0: the caller's fits never use more than this many DFT bins. When that is few enough
+  /// for the Goertzel evaluation (<= 2 log2 segment_samples, the rule fit() applies), no FFT plan is
+  /// made (planning an awkward length, e.g. a prime, costs milliseconds at start-up); a fit with more
+  /// bins then still works, through the Goertzel evaluation.
+  SpectralModeFitter(std::size_t segment_samples, double sample_rate_hz, std::size_t max_bins = 0);
   ~SpectralModeFitter();
   SpectralModeFitter(const SpectralModeFitter&) = delete;
   SpectralModeFitter& operator=(const SpectralModeFitter&) = delete;

@@ -126,7 +126,13 @@ ImpactAnalyzer::ImpactAnalyzer(const ImpactAnalyzerConfig& cfg, double fs) {
     const std::size_t len = full * k / 8 / in_dec_;
     if (len < min_len || (!fitter_len_.empty() && len == fitter_len_.back())) continue;
     fitter_len_.push_back(len);
-    fitters_.push_back(std::make_unique<dsp::SpectralModeFitter>(len, fs_a_));
+    // The most bins a fit of this length uses (analyze(), step 4: f_d <= the top row, half-width
+    // max(ml_band_rel f_d, 3 bins)), plus one for rounding: few enough for the Goertzel evaluation,
+    // so the fitter plans no FFT (start-up: ~2 ms of FFTW planning for the prime 883 and its kin).
+    const double bin_hz = fs_a_ / static_cast<double>(len);
+    const double half = std::max(ml_band_rel_ * rows_hz_.back(), 3.0 * bin_hz);
+    const auto max_bins = static_cast<std::size_t>(std::floor(2.0 * half / bin_hz)) + 2;
+    fitters_.push_back(std::make_unique<dsp::SpectralModeFitter>(len, fs_a_, max_bins));
   }
 }
 
