@@ -132,6 +132,27 @@ inline bool clipped_sum_any_above(const float* r, std::size_t n, float clip, flo
   return above_any;
 }
 
+// Sum of the ring entries eh[i & mask], i in [lo, hi), in four interleaved partial sums (two
+// two-double vectors: a short dependency chain).
+double ring_sum(const double* eh, std::uint64_t mask, std::uint64_t lo, std::uint64_t hi) {
+  using V2du = double __attribute__((vector_size(16), aligned(8)));
+  V2d a = {0.0, 0.0}, c = {0.0, 0.0};
+  for (std::uint64_t i = lo; i < hi;) {
+    const std::uint64_t p = i & mask;
+    const std::uint64_t n = std::min(hi - i, mask + 1 - p);  // contiguous up to the ring's end
+    const double* q = eh + p;
+    std::uint64_t k = 0;
+    for (; k + 4 <= n; k += 4) {
+      a += *reinterpret_cast<const V2du*>(q + k);
+      c += *reinterpret_cast<const V2du*>(q + k + 2);
+    }
+    for (; k < n; ++k) a[0] += q[k];
+    i += n;
+  }
+  const V2d s = a + c;
+  return s[0] + s[1];
+}
+
 }  // namespace
 
 void Biquad::settle(double x) {
@@ -322,6 +343,7 @@ void ImpactDetector::restart(std::uint64_t first_index) {
   due_p_ = wp_ + run_ + kSpikeDelay;
   mad_sum_ = 0.0;
   mad_count_ = 0;
+  run_clip_ready_ = false;
   lp_i_ = proto_;
   lp_q_ = proto_;
   phasor_ = {1.0, 0.0};
@@ -437,7 +459,7 @@ void ImpactDetector::decide_block(std::uint64_t b, std::size_t len, std::size_t 
   // The absolute floor keeps float32 rounding of an otherwise noise-free signal from looking noisy
   // or, with digital silence, everything from looking like a spike.
   const std::size_t first = b == seg_start_ ? 2 : 0;
-  const auto clip = static_cast<float>(3.0 * mad_sum_ + 1e-30);
+  const float clip = block_clip();
   const bool scan = test_spikes && mad_count_ >= kMadWarmup;
   const double t_mad = spike_k_ * std::max(0.6745 / 0.7979 * mad_sum_, 1e-9);
   if (b == seg_start_) r[0] = r[1] = 0.0f;
@@ -505,7 +527,7 @@ void ImpactDetector::decide_blocks(std::uint64_t b, std::size_t count) {
     }
     const float* x = buf_x_.data() + (bk - base_);
     float* r = buf_r_.data() + (bk - base_);
-    const auto clip = static_cast<float>(3.0 * mad_sum_ + 1e-30);  // as in decide_block()
+    const float clip = block_clip();  // as in decide_block()
     const auto above = static_cast<float>(spike_k_ * std::max(0.6745 / 0.7979 * mad_sum_, 1e-9));
     const F4 vclip = {clip, clip, clip, clip}, vabove = {above, above, above, above};
     auto residuals = [&](std::size_t v) {
@@ -632,10 +654,11 @@ void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
       }
       if (--resum_left == 0) {
         resum_left = pre_d_;
-        sta_sum = pre_sum = 0.0;
         const std::uint64_t have = m + 1;
-        for (std::uint64_t k = 0; k < std::min<std::uint64_t>(sta_d, have); ++k) sta_sum += eh[(m - k) & mask];
-        for (std::uint64_t k = sta_d; k < std::min<std::uint64_t>(full_d, have); ++k) pre_sum += eh[(m - k) & mask];
+        const std::uint64_t pre_lo = have - std::min<std::uint64_t>(full_d, have);
+        const std::uint64_t sta_lo = have - std::min<std::uint64_t>(sta_d, have);
+        sta_sum = ring_sum(eh, mask, sta_lo, have);
+        pre_sum = ring_sum(eh, mask, pre_lo, sta_lo);
       }
       // LTA: cumulative mean at first, then the capped exponential mean; frozen around triggers. The
       // fill-up samples before the warm-up are divided by a tiny g and are unreliable; since the capped
@@ -720,6 +743,7 @@ void ImpactDetector::process_block() {
   // they ran one at a time), the scale after each block kept for the band samples in it, then the
   // trigger band over the whole run.
   const std::uint64_t b = next_block_;
+  start_run_scale();
   decide_blocks(b, subs_);
   band_blocks(b, run_ / dec_);
   next_block_ += run_;
@@ -733,6 +757,7 @@ void ImpactDetector::finish() {
   const auto avail = static_cast<std::size_t>(next_index() - next_block_);
   const std::uint64_t b = next_block_;
   const std::size_t k = avail >= kSpikeDelay ? (avail - kSpikeDelay) / blk_ : 0;
+  start_run_scale();
   decide_blocks(b, k);
   const std::size_t rest = avail - k * blk_;
   const std::size_t len = rest / dec_ * dec_;
@@ -833,6 +858,11 @@ void ImpactDetector::decide_band_sample(std::uint64_t m, double e, double mad) {
     confirmed_ = false;
     lta_frozen_until_ = m + std::max<std::size_t>(holdoff_d_, confirm_d_) + 1;
   }
+}
+
+void ImpactDetector::start_run_scale() {
+  run_clip_ = static_cast<float>(3.0 * mad_sum_ + 1e-30);
+  run_clip_ready_ = mad_count_ >= kMadWarmup;
 }
 
 void ImpactDetector::note_scale(std::size_t k) {

@@ -247,6 +247,12 @@ class ImpactDetector {
   void shift_buffer();
   double white_band_power(double mad) const;
   void note_scale(std::size_t k);  // keeps the spike stage's scale after block k of a run
+  void start_run_scale();          // fixes the winsorisation limit of the run's blocks
+  /// Winsorisation limit 3 mean |r| of the scale update: as of the start of the run once the scale is
+  /// warm (so the blocks' clipped sums do not wait for each other's updates), else the current one.
+  float block_clip() const {
+    return run_clip_ready_ ? run_clip_ : static_cast<float>(3.0 * mad_sum_ + 1e-30);
+  }
 
   // configuration (input samples unless named _d: decimated samples)
   double fs_ = 0, fs_d_ = 0;
@@ -286,6 +292,8 @@ class ImpactDetector {
   float* due_p_ = nullptr;  // the block starting at next_block_ runs when wp_ reaches this
   double mad_sum_ = 0;           // running winsorised mean |r|
   std::uint64_t mad_count_ = 0;
+  float run_clip_ = 0;          // block_clip() of the current run
+  bool run_clip_ready_ = false;
   std::array<double, kMaxRunBlocks> scale_at_{};  // mad_sum_ after each block of the current run
   std::array<bool, kMaxRunBlocks> scale_ready_{};  // ... and whether it had seen kMadWarmup samples
   LowPass4 lp_i_, lp_q_;
