@@ -132,6 +132,13 @@ inline bool clipped_sum_any_above(const float* r, std::size_t n, float clip, flo
   return above_any;
 }
 
+// p / |p| to first order (one Newton step on |p|^2 = 1): keeps a phasor advanced by products on the
+// unit circle.
+std::complex<double> renormalised(std::complex<double> p) {
+  const double g = 0.5 * (3.0 - (p.real() * p.real() + p.imag() * p.imag()));
+  return {p.real() * g, p.imag() * g};
+}
+
 // Sum of the ring entries eh[i & mask], i in [lo, hi), in four interleaved partial sums (two
 // two-double vectors: a short dependency chain).
 double ring_sum(const double* eh, std::uint64_t mask, std::uint64_t lo, std::uint64_t hi) {
@@ -215,6 +222,16 @@ ImpactDetector::ImpactDetector(const ImpactDetectorConfig& cfg, double fs, std::
     g_im_[taps_ - 1 - k] = static_cast<float>(h * std::sin(w * static_cast<double>(k)));
   }
   rot_d_ = std::polar(1.0, -w * static_cast<double>(dec_));
+  // Demodulation phasors: e^{-i w D m} = base(m / kGroup) e^{-i w D (m mod kGroup)}, the second factor
+  // from a float table, the base advanced in double by e^{-i w D kGroup} and renormalised per group.
+  pw_re_.fill(0.0f);
+  pw_im_.fill(0.0f);
+  for (std::size_t k = 0; k < kGroup; ++k) {
+    const std::complex<double> p = std::polar(1.0, -w * static_cast<double>(dec_ * k));
+    pw_re_[k] = static_cast<float>(p.real());
+    pw_im_[k] = static_cast<float>(p.imag());
+  }
+  rot_g_ = std::polar(1.0, -w * static_cast<double>(dec_ * kGroup));
   proto_.s1 = Biquad::lowpass(bw, 0.54119610014619698, fs_d_);  // 1 / (2 cos(pi/8))
   proto_.s2 = Biquad::lowpass(bw, 1.3065629648763766, fs_d_);   // 1 / (2 cos(3 pi/8))
   // band_blocks() relies on b1 = 2 b0 and b2 = b0 exactly (see there).
@@ -322,14 +339,22 @@ void ImpactDetector::run_chain(const std::vector<double>& x, std::vector<std::co
   // The trigger band of a record x starting at rest, block grid at x[0]: as process_block().
   LowPass4 li = proto_, lq = proto_;
   std::complex<double> ph{1.0, 0.0};
+  std::size_t k_ph = 0;
   y.clear();
   std::vector<float> padded(taps_ - 1, 0.0f);
   for (double v : x) padded.push_back(static_cast<float>(v));
   for (std::size_t j = dec_ - 1; j < x.size(); j += dec_) {
     double re = 0.0, im = 0.0;
     fir_dot(padded.data() + j, g_re_.data(), g_im_.data(), taps_, re, im);  // x[j - L + 1 .. j]
-    const std::complex<double> z = std::complex<double>(re, im) * ph;
-    ph *= rot_d_;
+    // As band_blocks(): float products with the phasor base(m) table(m mod kGroup).
+    const auto br = static_cast<float>(ph.real()), bi = static_cast<float>(ph.imag());
+    const float pr = br * pw_re_[k_ph] - bi * pw_im_[k_ph], pi = br * pw_im_[k_ph] + bi * pw_re_[k_ph];
+    const auto fr = static_cast<float>(re), fi = static_cast<float>(im);
+    const std::complex<double> z(static_cast<double>(fr * pr - fi * pi), static_cast<double>(fr * pi + fi * pr));
+    if (++k_ph == kGroup) {
+      k_ph = 0;
+      ph = renormalised(ph * rot_g_);
+    }
     y.emplace_back(li.step(z.real()), lq.step(z.imag()));
   }
 }
@@ -587,7 +612,6 @@ void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
   const std::uint64_t mask = e_mask_;
   const std::uint64_t n_fill = fill_.size();
   const std::uint64_t sta_d = sta_d_, full_d = sta_d_ + pre_d_;
-  const double rot_re = rot_d_.real(), rot_im = rot_d_.imag();
   const double keep = lta_keep_, alpha = lta_alpha_, cap_alpha = lta_cap_alpha_;
   auto splat = [](double v) { return V2d{v, v}; };
   const Biquad& c1 = proto_.s1;
@@ -599,36 +623,42 @@ void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
   const V2d b0_2 = splat(c2.b0), a1_2 = splat(c2.a1), a2_2 = splat(c2.a2);
   V2d s1_1 = {lp_i_.s1.s1, lp_q_.s1.s1}, s2_1 = {lp_i_.s1.s2, lp_q_.s1.s2};
   V2d s1_2 = {lp_i_.s2.s1, lp_q_.s2.s1}, s2_2 = {lp_i_.s2.s2, lp_q_.s2.s2};
-  double ph_re = phasor_.real(), ph_im = phasor_.imag();
+  std::complex<double> ph = phasor_;
   double sta_sum = sta_sum_, pre_sum = pre_sum_, lta = lta_;
   std::uint64_t m = band_count_;
   std::size_t sub = 0, sub_left = per_block;  // block of the run (its scale: scale_at_[sub])
   std::size_t resum_left = resum_left_;
   std::uint64_t lta_count = lta_count_;
-  constexpr std::size_t kChunk = 16;  // band samples whose FIR outputs are computed in one pass
-  float fir_re[kChunk], fir_im[kChunk];
-  for (std::size_t j0 = 0; j0 < count; j0 += kChunk) {
-    const std::size_t n_chunk = std::min(kChunk, count - j0);
+  // FIR outputs and demodulated values of up to kGroup band samples (padded for the vectors of four).
+  float fir_re[kGroup + 4] = {}, fir_im[kGroup + 4] = {}, z_re[kGroup + 4], z_im[kGroup + 4];
+  const float* const pw_re = pw_re_.data();
+  const float* const pw_im = pw_im_.data();
+  for (std::size_t j0 = 0; j0 < count;) {
+    // Chunks end at the phasor groups' boundaries (m a multiple of kGroup): the phasor of band sample
+    // m depends on m only.
+    const auto i0 = static_cast<std::size_t>(m % kGroup);
+    const std::size_t n_chunk = std::min(kGroup - i0, count - j0);
     fir_steps_any(x + j0 * dec_, dec_, n_chunk, g_re, g_im, taps, fir_re, fir_im);
+    {
+      // z = (re + i im) e^{-i w D m}, in float (as run_chain()).
+      const auto br = static_cast<float>(ph.real()), bi = static_cast<float>(ph.imag());
+      const F4 vbr = {br, br, br, br}, vbi = {bi, bi, bi, bi};
+      for (std::size_t v = 0; v < n_chunk; v += 4) {
+        const F4 tr = load4(pw_re + i0 + v), ti = load4(pw_im + i0 + v);
+        const F4 pr = vbr * tr - vbi * ti, pi = vbr * ti + vbi * tr;
+        const F4 fr = load4(fir_re + v), fi = load4(fir_im + v);
+        store4(z_re + v, fr * pr - fi * pi);
+        store4(z_im + v, fr * pi + fi * pr);
+      }
+    }
+    if (i0 + n_chunk == kGroup) ph = renormalised(ph * rot_g_);
     for (std::size_t j = 0; j < n_chunk; ++j, ++m) {
       if (sub_left == 0) {
         ++sub;
         sub_left = per_block;
       }
       --sub_left;
-      const auto re = static_cast<double>(fir_re[j]), im = static_cast<double>(fir_im[j]);
-      // z = (re + i im) e^{-i w j}; the phasor advances by e^{-i w D} per band sample, renormalised
-      // every 64 (Newton step on |p|^2 = 1) so rounding cannot make it drift. (Complex products
-      // written out: (a + ib)(c + id) = (ac - bd) + i(ad + bc).)
-      const V2d z = {re * ph_re - im * ph_im, re * ph_im + im * ph_re};
-      const double next_re = ph_re * rot_re - ph_im * rot_im;
-      ph_im = ph_re * rot_im + ph_im * rot_re;
-      ph_re = next_re;
-      if ((m & 63) == 0) {
-        const double g = 0.5 * (3.0 - (ph_re * ph_re + ph_im * ph_im));
-        ph_re *= g;
-        ph_im *= g;
-      }
+      const V2d z = {static_cast<double>(z_re[j]), static_cast<double>(z_im[j])};
       // 4th-order low-pass on I and Q (Biquad::step, two stages).
       const V2d bz_1 = b0_1 * z;
       const V2d y1 = bz_1 + s1_1;
@@ -701,6 +731,7 @@ void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
       lta_ = lta;
       decide_band_sample(m, e, scale_at_[sub]);
     }
+    j0 += n_chunk;
   }
   resum_left_ = resum_left;
   lta_count_ = lta_count;
@@ -708,7 +739,7 @@ void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
   sta_sum_ = sta_sum;
   pre_sum_ = pre_sum;
   lta_ = lta;
-  phasor_ = {ph_re, ph_im};
+  phasor_ = ph;
   lp_i_.s1.s1 = s1_1[0];
   lp_q_.s1.s1 = s1_1[1];
   lp_i_.s1.s2 = s2_1[0];

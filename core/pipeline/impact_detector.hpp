@@ -265,6 +265,9 @@ class ImpactDetector {
   std::size_t taps_ = 2;                // FIR length L = 2 D
   std::vector<float> g_re_, g_im_;      // band-pass FIR h[k] e^{+i w k}, stored reversed (oldest first)
   std::complex<double> rot_d_{1.0, 0.0};  // e^{-i w D}
+  static constexpr std::size_t kGroup = 16;  // band samples per demodulation phasor base
+  std::array<float, kGroup + 4> pw_re_{}, pw_im_{};  // e^{-i w D k}, k < kGroup (zero-padded)
+  std::complex<double> rot_g_{1.0, 0.0};  // e^{-i w D kGroup}
   std::size_t sta_d_ = 1, lta_d_ = 1, holdoff_d_ = 0, confirm_d_ = 1, pre_d_ = 1;
   double inv_sta_d_ = 1, inv_pre_d_ = 1;
   std::size_t warmup_d_ = 1;            // band samples before triggers are allowed
@@ -297,7 +300,7 @@ class ImpactDetector {
   std::array<double, kMaxRunBlocks> scale_at_{};  // mad_sum_ after each block of the current run
   std::array<bool, kMaxRunBlocks> scale_ready_{};  // ... and whether it had seen kMadWarmup samples
   LowPass4 lp_i_, lp_q_;
-  std::complex<double> phasor_{1.0, 0.0};
+  std::complex<double> phasor_{1.0, 0.0};  // demodulation phasor base of band_count_'s group
 
   std::vector<double> e_hist_;   // trigger-band power history, by decimated index & mask
   std::uint64_t e_mask_ = 0;
