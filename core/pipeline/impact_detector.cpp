@@ -54,6 +54,15 @@ inline void store4(float* p, F4 v) { *reinterpret_cast<F4u*>(p) = v; }
 
 inline float lanes_sum(F4 s) { return (s[0] + s[1]) + (s[2] + s[3]); }
 
+// {lanes_sum(a[0]), ..., lanes_sum(a[3])}, the same additions in the same order: pairs of lanes
+// summed in one add for two vectors at a time, then the pairs of pairs.
+inline F4 lanes_sum4(const F4 (&a)[4]) {
+  const I4 even = {0, 2, 4, 6}, odd = {1, 3, 5, 7};
+  const F4 p = __builtin_shuffle(a[0], a[1], even) + __builtin_shuffle(a[0], a[1], odd);  // a0 01 23, a1 01 23
+  const F4 q = __builtin_shuffle(a[2], a[3], even) + __builtin_shuffle(a[2], a[3], odd);
+  return __builtin_shuffle(p, q, even) + __builtin_shuffle(p, q, odd);
+}
+
 // Dot products of the samples with the real and imaginary FIR taps (float, see the header: stage 2a),
 // n a multiple of 4.
 inline void fir_dot(const float* x, const float* g_re, const float* g_im, std::size_t n, double& re, double& im) {
@@ -77,7 +86,23 @@ void fir_steps(const float* x, std::size_t step, std::size_t count, const float*
     gr[v] = load4(g_re + 4 * v);
     gi[v] = load4(g_im + 4 * v);
   }
-  for (std::size_t j = 0; j < count; ++j, x += step) {
+  std::size_t j = 0;
+  for (; j + 4 <= count; j += 4, x += 4 * step) {
+    // Four windows at once, their lane sums by a transposition (the same sums as lanes_sum()).
+    F4 a_re[4], a_im[4];
+    for (std::size_t u = 0; u < 4; ++u) {
+      a_re[u] = F4{0, 0, 0, 0};
+      a_im[u] = F4{0, 0, 0, 0};
+      for (std::size_t v = 0; v < NV; ++v) {
+        const F4 xv = load4(x + u * step + 4 * v);
+        a_re[u] += gr[v] * xv;
+        a_im[u] += gi[v] * xv;
+      }
+    }
+    store4(re + j, lanes_sum4(a_re));
+    store4(im + j, lanes_sum4(a_im));
+  }
+  for (; j < count; ++j, x += step) {
     F4 a_re = {0, 0, 0, 0}, a_im = {0, 0, 0, 0};
     for (std::size_t v = 0; v < NV; ++v) {
       const F4 xv = load4(x + 4 * v);
