@@ -10,10 +10,15 @@
 // the run only delays the decisions). Blocks and runs are aligned to the segment start, so the output
 // does not depend on how the caller splits the stream (bit-identical for any push pattern; tested).
 // All state is preallocated; push() never allocates (tested). Measured (bench/bench_pipeline
-// BM_DetectorOnly, detector alone, 51.2 kHz, one push per sample): ~2.7 ns per sample, ~3.5 ns with
-// one block per run (longer runs: no measurable gain at 2 ms, ~5 % at 3.2 ms, not worth their
-// delay); 4 ns before the vectorised kernels of decide_blocks() and band_blocks(), 13 ns for the
-// former per-sample chain.
+// BM_DetectorOnly, detector alone, 51.2 kHz, one push per sample): ~2.4 ns per sample (1.27 ms per
+// 10 s; 2.7-2.9 ns before the per-run winsorisation limit, the float demodulation and the vectorised
+// re-sum, -14 to -17 % in the same session), ~3.5 ns with one block per run (longer runs: no
+// measurable gain at 2 ms, ~5 % at 3.2 ms, not worth their delay); 4 ns before the vectorised kernels
+// of decide_blocks() and band_blocks(), 13 ns for the former per-sample chain. Of the rest, about a
+// quarter is the caller's per-sample push() (a store and the write pointer's increment through
+// memory), a third the band loop (throughput-bound: writing the low-pass so that its recursion is one
+// product and one subtraction, or the STA/PRE updates as one addition each, did not pay), a quarter
+// the spike stage.
 //
 //  1. Spikes (isolated outliers). Residual of the 4-neighbour cubic interpolation
 //        r[n] = x[n] - (-x[n-2] + 4 x[n-1] + 4 x[n+1] - x[n+2]) / 6,
@@ -29,7 +34,11 @@
 //     blocks holding a residual above spike_mad MAD (rare: spikes and sharp impact onsets) run the
 //     sequential isolation test. The MAD is a winsorised running mean of |r| (time constant lta_s,
 //     updated once per block with the block's mean of min(|r|, 3 mean)), converted with the Gaussian
-//     ratios MAD = 0.6745 sd, E|r| = 0.7979 sd. Decision delay: 4 samples.
+//     ratios MAD = 0.6745 sd, E|r| = 0.7979 sd. The winsorisation limit 3 mean is taken once per run
+//     (as of the run's start, once the scale is warm): the blocks' clipped sums then do not wait for
+//     each other's scale updates (a serial chain of ~60 cycles per block before); it lags the scale by
+//     at most 1.2 ms against its time constant lta_s. The spike threshold uses the current scale.
+//     Decision delay: 4 samples.
 //     Samples and residuals are float: the input is float32 already, and the residual's rounding
 //     error (~1e-7 of the neighbours' magnitude) is far below both limits (12 MAD of any real noise,
 //     a quarter of the neighbours).
@@ -41,7 +50,11 @@
 //          samples as
 //              z_m = e^{-i w j} sum_k h[k] e^{+i w k} x[j - k],   w = 2 pi f_c / fs, j = step end,
 //          i.e. a dot product of the samples with a precomputed complex tap table (the band-pass
-//          FIR h[k] e^{i w k}) and one phasor rotation per band sample. Its nulls sit on the multiples
+//          FIR h[k] e^{i w k}) and one phasor rotation per band sample, in float: the phasor of band
+//          sample m is a double base for each group of 16 band samples (advanced by e^{-i w D 16} and
+//          renormalised per group, a function of m only) times a float table e^{-i w D (m mod 16)},
+//          computed four band samples at a time apart from the recursive part (rounding ~1e-7 of the
+//          band content, like the float FIR). Its nulls sit on the multiples
 //          of the decimated rate fs_d = fs / D (>= 40 B, 5120 Hz at the defaults); what aliases into
 //          the +-B band is attenuated by >= 60 dB (|sin(pi f D / fs) / (D sin(pi f / fs))|^2 at
 //          f = fs_d - B). Float taps and sums: the rounding error (~20 taps x 6e-8 of the largest
@@ -60,7 +73,10 @@
 //     StreamProcessor takes from band_power() and one sim-nuisance event past the 10 % acceptance
 //     limit; at 40 B it is 5 %.)
 //
-//  3. Energy e. STA = boxcar mean over sta_s (rounded to band samples). LTA = exponential mean (time
+//  3. Energy e. STA = boxcar mean over sta_s (rounded to band samples); STA and PRE (stage 4) are
+//     running sums, re-summed from the history once per pre-window (41 band samples at the defaults) in
+//     four interleaved partial sums, so their rounding cannot accumulate (a 41-step addition chain
+//     before: ~4 % of the detector). LTA = exponential mean (time
 //     constant lta_s; a cumulative mean at the start) of min(e, 3 LTA), frozen from a trigger to the end
 //     of its hold-off: an impact can raise it only slowly. For Gaussian noise the capped mean is 0.857
 //     of the power (E min(z^2, 3) = 0.857), which is divided out.
