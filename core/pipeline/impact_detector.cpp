@@ -654,6 +654,15 @@ void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
   std::size_t sub = 0, sub_left = per_block;  // block of the run (its scale: scale_at_[sub])
   std::size_t resum_left = resum_left_;
   std::uint64_t lta_count = lta_count_;
+  const double inv_sta = inv_sta_d_, inv_pre = inv_pre_d_, ratio = ratio_;
+  // The STA/PRE sums from the history of the band samples before `have`.
+  auto resum = [&](std::uint64_t have) {
+    resum_left = pre_d_;
+    const std::uint64_t pre_lo = have - std::min<std::uint64_t>(full_d, have);
+    const std::uint64_t sta_lo = have - std::min<std::uint64_t>(sta_d, have);
+    sta_sum = ring_sum(eh, mask, sta_lo, have);
+    pre_sum = ring_sum(eh, mask, pre_lo, sta_lo);
+  };
   // FIR outputs and demodulated values of up to kGroup band samples (padded for the vectors of four).
   float fir_re[kGroup + 4] = {}, fir_im[kGroup + 4] = {}, z_re[kGroup + 4], z_im[kGroup + 4];
   const float* const pw_re = pw_re_.data();
@@ -677,6 +686,12 @@ void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
       }
     }
     if (i0 + n_chunk == kGroup) ph = renormalised(ph * rot_g_);
+    // Steady: past the fill-up, full windows, the LTA raised, running (not frozen, past its cumulative
+    // start) and armed (no confirmation, hold-off or start-up rule). The chunk's band samples then take
+    // the short path below (the same operations as the general path in this state) until one triggers;
+    // only decide_band_sample() changes these conditions.
+    bool steady = m >= n_fill && m >= full_d && lta_raised_ && m >= lta_frozen_until_ && lta_count > lta_d_ &&
+                  m + 1 >= warmup_d_ && !confirming_ && m >= holdoff_end_ && !startup_;
     for (std::size_t j = 0; j < n_chunk; ++j, ++m) {
       if (sub_left == 0) {
         ++sub;
@@ -694,6 +709,28 @@ void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
       s1_2 = ((bz_2 + bz_2) + s2_2) - a1_2 * y;
       s2_2 = bz_2 - a2_2 * y;
       double e = y[0] * y[0] + y[1] * y[1];
+      if (steady) {
+        eh[m & mask] = e;
+        sta_sum += e;
+        const double moved = eh[(m - sta_d) & mask];
+        sta_sum -= moved;
+        pre_sum += moved;
+        pre_sum -= eh[(m - full_d) & mask];
+        if (--resum_left == 0) resum(m + 1);
+        ++lta_count;
+        lta = keep * lta + std::min(alpha * e, cap_alpha * lta);
+        const double sta = std::max(sta_sum, 0.0) * inv_sta;
+        const double pre = std::max(pre_sum, 0.0) * inv_pre;
+        const double ref = std::max({lta * (1.0 / kCapBias), pre, 1e-30});
+        if (!(sta > ratio * ref)) continue;
+        steady = false;
+        band_count_ = m + 1;
+        sta_sum_ = sta_sum;
+        pre_sum_ = pre_sum;
+        lta_ = lta;
+        decide_band_sample(m, e, scale_at_[sub]);
+        continue;
+      }
       // While the chain fills up after a (re)start, stationary input gives E[e] = E_inf g(m): divide by
       // g so the start of a record is not a rising edge.
       if (m < n_fill) e /= fill_[static_cast<std::size_t>(m)];
@@ -707,14 +744,7 @@ void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
         pre_sum += moved;
         if (m >= full_d) pre_sum -= eh[(m - full_d) & mask];
       }
-      if (--resum_left == 0) {
-        resum_left = pre_d_;
-        const std::uint64_t have = m + 1;
-        const std::uint64_t pre_lo = have - std::min<std::uint64_t>(full_d, have);
-        const std::uint64_t sta_lo = have - std::min<std::uint64_t>(sta_d, have);
-        sta_sum = ring_sum(eh, mask, sta_lo, have);
-        pre_sum = ring_sum(eh, mask, pre_lo, sta_lo);
-      }
+      if (--resum_left == 0) resum(m + 1);
       // LTA: cumulative mean at first, then the capped exponential mean; frozen around triggers. The
       // fill-up samples before the warm-up are divided by a tiny g and are unreliable; since the capped
       // mean may grow by at most (1 + 2/n) per sample, a start far too low would take ~100 ms to recover
