@@ -33,6 +33,8 @@ Biquad make_biquad(double f_hz, double q, double fs, bool high) {
 }
 
 constexpr double kSixth = 1.0 / 6.0;
+// The interpolation residual (stage 1) in float as x[n] + (x[n-2] + x[n+2]) / 6 - (x[n-1] + x[n+1]) 2/3.
+constexpr float kSixthF = 1.0f / 6.0f, kTwoThirdsF = 2.0f / 3.0f;
 
 // Four floats in one register (SSE2 on x86-64, NEON on AArch64), with GCC/Clang vector extensions:
 // the four partial sums below are four independent lanes. Written as plain loops over four scalar
@@ -504,7 +506,6 @@ void ImpactDetector::decide_block(std::uint64_t b, std::size_t len, std::size_t 
   const std::size_t d = len;
   const float* x = buf_x_.data() + (b - base_);
   float* r = buf_r_.data() + (b - base_);
-  constexpr float kSixthF = 1.0f / 6.0f;
   // Robust scale: MAD from the winsorised mean |r| (Gaussian: E|r| = 0.7979 sd, MAD = 0.6745 sd).
   // The absolute floor keeps float32 rounding of an otherwise noise-free signal from looking noisy
   // or, with digital silence, everything from looking like a spike.
@@ -518,7 +519,7 @@ void ImpactDetector::decide_block(std::uint64_t b, std::size_t len, std::size_t 
     const float* __restrict xs = x;
     float* __restrict rs = r;
     for (std::size_t i = 2; i < 2 + n_res; ++i)
-      rs[i] = xs[i] - (-xs[i - 2] + 4.0f * xs[i - 1] + 4.0f * xs[i + 1] - xs[i + 2]) * kSixthF;
+      rs[i] = (xs[i] + (xs[i - 2] + xs[i + 2]) * kSixthF) - (xs[i - 1] + xs[i + 1]) * kTwoThirdsF;
   }
   for (std::size_t i = 2 + n_res; i < d + 2; ++i) r[i] = 0.0f;  // end of segment: no right neighbours
   if (scan) {
@@ -563,8 +564,7 @@ void ImpactDetector::decide_blocks(std::uint64_t b, std::size_t count) {
   // residuals past b + blk + 1 from samples not yet pushed, which the next block recomputes before
   // anything reads them (the buffer has room). A block with a candidate is decided again by
   // decide_block() (the same residuals, then the isolation test).
-  constexpr float kSixthF = 1.0f / 6.0f;
-  const F4 four = {4.0f, 4.0f, 4.0f, 4.0f}, sixth = {kSixthF, kSixthF, kSixthF, kSixthF};
+  const F4 sixth = {kSixthF, kSixthF, kSixthF, kSixthF}, two_thirds = {kTwoThirdsF, kTwoThirdsF, kTwoThirdsF, kTwoThirdsF};
   constexpr std::int32_t kNoSign = 0x7fffffff;
   const I4 no_sign = {kNoSign, kNoSign, kNoSign, kNoSign};
   const std::size_t d = blk_, n_vec = (d + 2 + 3) / 4, n_sum = d / 4;
@@ -582,7 +582,7 @@ void ImpactDetector::decide_blocks(std::uint64_t b, std::size_t count) {
     const F4 vclip = {clip, clip, clip, clip}, vabove = {above, above, above, above};
     auto residuals = [&](std::size_t v) {
       const float* xv = x + 4 * v;
-      return load4(xv) - (-load4(xv - 2) + four * load4(xv - 1) + four * load4(xv + 1) - load4(xv + 2)) * sixth;
+      return (load4(xv) + (load4(xv - 2) + load4(xv + 2)) * sixth) - (load4(xv - 1) + load4(xv + 1)) * two_thirds;  // as decide_block()
     };
     F4 sum = {0, 0, 0, 0};
     I4 any = {0, 0, 0, 0};
