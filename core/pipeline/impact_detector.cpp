@@ -579,13 +579,12 @@ void ImpactDetector::decide_blocks(std::uint64_t b, std::size_t count) {
     float* r = buf_r_.data() + (bk - base_);
     const float clip = block_clip();  // as in decide_block()
     const auto above = static_cast<float>(spike_k_ * std::max(0.6745 / 0.7979 * mad_sum_, 1e-9));
-    const F4 vclip = {clip, clip, clip, clip}, vabove = {above, above, above, above};
+    const F4 vclip = {clip, clip, clip, clip};
     auto residuals = [&](std::size_t v) {
       const float* xv = x + 4 * v;
       return (load4(xv) + (load4(xv - 2) + load4(xv + 2)) * sixth) - (load4(xv - 1) + load4(xv + 1)) * two_thirds;  // as decide_block()
     };
-    F4 sum = {0, 0, 0, 0};
-    I4 any = {0, 0, 0, 0};
+    F4 sum = {0, 0, 0, 0}, top = {0, 0, 0, 0};  // top: lane-wise max |r| for the candidate test
     F4 rv = residuals(0);
     rv[0] = r[0];
     rv[1] = r[1];
@@ -594,7 +593,7 @@ void ImpactDetector::decide_blocks(std::uint64_t b, std::size_t count) {
     for (; v <= n_sum; ++v) {
       const F4 a = reinterpret_cast<F4>(reinterpret_cast<I4>(rv) & no_sign);  // |r| of vector v - 1
       sum += vclip < a ? vclip : a;                                            // std::min(a, clip)
-      any |= a > vabove;
+      top = top < a ? a : top;                                                 // std::max(top, a)
       rv = residuals(v);
       store4(r + 4 * v, rv);
     }
@@ -603,7 +602,7 @@ void ImpactDetector::decide_blocks(std::uint64_t b, std::size_t count) {
       store4(r + 4 * v, rv);
     }
     float s0 = sum[0];
-    bool candidate = (any[0] | any[1] | any[2] | any[3]) != 0;
+    bool candidate = std::max(std::max(top[0], top[1]), std::max(top[2], top[3])) > above;
     for (std::size_t i = 4 * n_sum; i < d; ++i) {  // d mod 4 left: lane 0, in order
       const float a = std::abs(r[i]);
       s0 += std::min(a, clip);
