@@ -359,6 +359,11 @@ ImpactDetector::ImpactDetector(const ImpactDetectorConfig& cfg, double fs, std::
   // before the run's end pointer leaves fewer than kReadAhead slots after it.
   buf_x_.assign(hist_ + 16 * run_ + run_ + kSpikeDelay + 8 + kSpikeDelay + kReadAhead + dec_ + 8, 0.0f);
   buf_r_.assign(buf_x_.size(), 0.0f);
+  // Block of the run of each band sample of a band_blocks() call (finish() passes up to
+  // run_ + kSpikeDelay - 1 samples).
+  sub_of_.resize((run_ + kSpikeDelay) / dec_ + 1);
+  for (std::size_t j = 0; j < sub_of_.size(); ++j)
+    sub_of_[j] = static_cast<std::uint8_t>(std::min(j / (blk_ / dec_), kMaxRunBlocks - 1));
   restart(0);
 }
 
@@ -631,7 +636,6 @@ void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
   const float* const g_re = g_re_.data();
   const float* const g_im = g_im_.data();
   const std::size_t taps = taps_;
-  const std::size_t per_block = blk_ / dec_;
   double* const eh = e_hist_.data();
   const std::uint64_t mask = e_mask_;
   const std::uint64_t n_fill = fill_.size();
@@ -650,10 +654,10 @@ void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
   std::complex<double> ph = phasor_;
   double sta_sum = sta_sum_, pre_sum = pre_sum_, lta = lta_;
   std::uint64_t m = band_count_;
-  std::size_t sub = 0, sub_left = per_block;  // block of the run (its scale: scale_at_[sub])
+  const std::uint8_t* const sub_of = sub_of_.data();  // block of the run (its scale: scale_at_[sub_of[j0 + j]])
   std::size_t resum_left = resum_left_;
   std::uint64_t lta_count = lta_count_;
-  const double inv_sta = inv_sta_d_, inv_pre = inv_pre_d_, ratio = ratio_;
+  const double k_sta = inv_sta_d_ * (1.0 + 1e-9), k_lta = ratio_ / kCapBias, k_pre = ratio_ * inv_pre_d_;
   // The STA/PRE sums from the history of the band samples before `have`.
   auto resum = [&](std::uint64_t have) {
     resum_left = pre_d_;
@@ -692,11 +696,6 @@ void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
     bool steady = m >= n_fill && m >= full_d && lta_raised_ && m >= lta_frozen_until_ && lta_count > lta_d_ &&
                   m + 1 >= warmup_d_ && !confirming_ && m >= holdoff_end_ && !startup_;
     for (std::size_t j = 0; j < n_chunk; ++j, ++m) {
-      if (sub_left == 0) {
-        ++sub;
-        sub_left = per_block;
-      }
-      --sub_left;
       const V2d z = {static_cast<double>(z_re[j]), static_cast<double>(z_im[j])};
       // 4th-order low-pass on I and Q (Biquad::step, two stages).
       const V2d bz_1 = b0_1 * z;
@@ -718,16 +717,16 @@ void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
         if (--resum_left == 0) resum(m + 1);
         ++lta_count;
         lta = keep * lta + std::min(alpha * e, cap_alpha * lta);
-        const double sta = std::max(sta_sum, 0.0) * inv_sta;
-        const double pre = std::max(pre_sum, 0.0) * inv_pre;
-        const double ref = std::max({lta * (1.0 / kCapBias), pre, 1e-30});
-        if (!(sta > ratio * ref)) continue;
+        // The trigger test of decide_band_sample() with the constants folded, and by a margin of 1e-9
+        // more permissive than its rounding can make a difference (negative sums, the floor 1e-30:
+        // see there): decide_band_sample() decides whenever that test can fire.
+        if (!(sta_sum * k_sta > std::max(lta * k_lta, pre_sum * k_pre))) continue;
         steady = false;
         band_count_ = m + 1;
         sta_sum_ = sta_sum;
         pre_sum_ = pre_sum;
         lta_ = lta;
-        decide_band_sample(m, e, scale_at_[sub]);
+        decide_band_sample(m, e, scale_at_[sub_of[j0 + j]]);
         continue;
       }
       // While the chain fills up after a (re)start, stationary input gives E[e] = E_inf g(m): divide by
@@ -751,8 +750,8 @@ void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
       // white-noise band power measured by the spike stage (see white_band_power()), or, when that scale
       // is not ready yet (it needs kMadWarmup samples: at 8 kHz with D = 1 the warm-up ends after ~24),
       // at the first band sample after the warm-up where it is. Once per segment.
-      if (!lta_raised_ && m + 1 >= warmup_d_ && scale_ready_[sub]) {
-        lta = std::max(lta, kCapBias * white_band_power(scale_at_[sub]));
+      if (!lta_raised_ && m + 1 >= warmup_d_ && scale_ready_[sub_of[j0 + j]]) {
+        lta = std::max(lta, kCapBias * white_band_power(scale_at_[sub_of[j0 + j]]));
         lta_raised_ = true;
       }
       if (m >= lta_frozen_until_) {
@@ -783,7 +782,7 @@ void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
       sta_sum_ = sta_sum;
       pre_sum_ = pre_sum;
       lta_ = lta;
-      decide_band_sample(m, e, scale_at_[sub]);
+      decide_band_sample(m, e, scale_at_[sub_of[j0 + j]]);
     }
     j0 += n_chunk;
   }

@@ -279,6 +279,7 @@ class ImpactDetector {
   double inv_blk_ = 1;
   std::size_t subs_ = 1, run_ = 1;      // blocks and samples per processing run
   std::size_t taps_ = 2;                // FIR length L = 2 D
+  std::vector<std::uint8_t> sub_of_;    // band sample j of a run -> its block, j / (blk / D)
   std::vector<float> g_re_, g_im_;      // band-pass FIR h[k] e^{+i w k}, stored reversed (oldest first)
   std::complex<double> rot_d_{1.0, 0.0};  // e^{-i w D}
   static constexpr std::size_t kGroup = 16;  // band samples per demodulation phasor base
