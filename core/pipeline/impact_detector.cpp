@@ -573,7 +573,55 @@ void ImpactDetector::decide_blocks(std::uint64_t b, std::size_t count) {
   constexpr std::int32_t kNoSign = 0x7fffffff;
   const I4 no_sign = {kNoSign, kNoSign, kNoSign, kNoSign};
   const std::size_t d = blk_, n_vec = (d + 2 + 3) / 4, n_sum = d / 4;
-  for (std::size_t k = 0; k < count; ++k) {
+  std::size_t k0 = 0;  // blocks before k0 are decided
+  if (d % 4 == 0 && count > 1 && mad_count_ >= kMadWarmup && b != seg_start_) {
+    // Blocks of whole vectors with a warm scale (and so one winsorisation limit for the run): the
+    // residuals, clipped sums and maxima of all count blocks in one pass (the vectors of the
+    // per-block path below, the same sums), then the blocks' pre-tests and scale updates in order.
+    // The first block with a candidate is decided by decide_block(), which may correct r[0], r[1] of
+    // the next one: the blocks after it take the per-block path.
+    const float* x = buf_x_.data() + (b - base_);
+    float* r = buf_r_.data() + (b - base_);
+    const float clip = block_clip();
+    const F4 vclip = {clip, clip, clip, clip};
+    const std::size_t nv = d / 4;
+    auto residuals = [&](std::size_t v) {
+      const float* xv = x + 4 * v;
+      return (load4(xv) + (load4(xv - 2) + load4(xv + 2)) * sixth) - (load4(xv - 1) + load4(xv + 1)) * two_thirds;  // as decide_block()
+    };
+    std::array<F4, kMaxRunBlocks> sums, tops;
+    F4 rv = residuals(0);
+    rv[0] = r[0];  // from the previous run
+    rv[1] = r[1];
+    for (std::size_t k = 0; k < count; ++k) {
+      F4 sum = {0, 0, 0, 0}, top = {0, 0, 0, 0};
+      for (std::size_t v = 0; v < nv; ++v) {
+        const std::size_t i = k * nv + v;
+        if (i > 0) rv = residuals(i);
+        store4(r + 4 * i, rv);
+        const F4 a = reinterpret_cast<F4>(reinterpret_cast<I4>(rv) & no_sign);  // |r|
+        sum += vclip < a ? vclip : a;                                            // std::min(a, clip)
+        top = top < a ? a : top;                                                 // std::max(top, a)
+      }
+      sums[k] = sum;
+      tops[k] = top;
+    }
+    store4(r + count * d, residuals(count * nv));  // r[0], r[1] of the next run (and two slots past)
+    for (; k0 < count; ++k0) {
+      const auto above = static_cast<float>(spike_k_ * std::max(0.6745 / 0.7979 * mad_sum_, 1e-9));
+      const F4 top = tops[k0], sum = sums[k0];
+      if (std::max(std::max(top[0], top[1]), std::max(top[2], top[3])) > above) {
+        decide_block(b + k0 * d, d, d, true);
+        note_scale(k0);
+        ++k0;
+        break;
+      }
+      const auto sm = static_cast<double>((sum[0] + sum[1]) + (sum[2] + sum[3]));
+      mad_sum_ += mad_beta_ * (sm * inv_blk_ - mad_sum_);  // as in decide_block()
+      note_scale(k0);
+    }
+  }
+  for (std::size_t k = k0; k < count; ++k) {
     const std::uint64_t bk = b + k * d;
     if (mad_count_ < kMadWarmup || bk == seg_start_) {
       decide_block(bk, d, d, true);
