@@ -715,7 +715,11 @@ void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
     pre_sum = ring_sum(eh, mask, pre_lo, sta_lo);
   };
   // FIR outputs and demodulated values of up to kGroup band samples (padded for the vectors of four).
-  float fir_re[kGroup + 4] = {}, fir_im[kGroup + 4] = {}, z_re[kGroup + 4], z_im[kGroup + 4];
+  // (Members, zeroed once: the vectors of four read past a chunk's end.)
+  float* const fir_re = fir_re_.data();
+  float* const fir_im = fir_im_.data();
+  float* const z_re = z_re_.data();
+  float* const z_im = z_im_.data();
   const float* const pw_re = pw_re_.data();
   const float* const pw_im = pw_im_.data();
   for (std::size_t j0 = 0; j0 < count;) {

@@ -285,6 +285,8 @@ class ImpactDetector {
   static constexpr std::size_t kGroup = 16;  // band samples per demodulation phasor base
   std::array<float, kGroup + 4> pw_re_{}, pw_im_{};  // e^{-i w D k}, k < kGroup (zero-padded)
   std::complex<double> rot_g_{1.0, 0.0};  // e^{-i w D kGroup}
+  // band_blocks() scratch: FIR outputs and demodulated values of a chunk (padded for vectors of four)
+  std::array<float, kGroup + 4> fir_re_{}, fir_im_{}, z_re_{}, z_im_{};
   std::size_t sta_d_ = 1, lta_d_ = 1, holdoff_d_ = 0, confirm_d_ = 1, pre_d_ = 1;
   double inv_sta_d_ = 1, inv_pre_d_ = 1;
   std::size_t warmup_d_ = 1;            // band samples before triggers are allowed
