@@ -10,18 +10,22 @@
 // the run only delays the decisions). Blocks and runs are aligned to the segment start, so the output
 // does not depend on how the caller splits the stream (bit-identical for any push pattern; tested).
 // All state is preallocated; push() never allocates (tested). Measured (bench/bench_pipeline
-// BM_DetectorOnly, detector alone, 51.2 kHz, one push per sample): ~2.4 ns per sample (1.27 ms per
-// 10 s; 2.7-2.9 ns before the per-run winsorisation limit, the float demodulation and the vectorised
-// re-sum, -14 to -17 % in the same session), ~3.5 ns with one block per run (longer runs: no
-// measurable gain at 2 ms, ~5 % at 3.2 ms, not worth their delay); 4 ns before the vectorised kernels
-// of decide_blocks() and band_blocks(), 13 ns for the former per-sample chain. Of the rest, about a
-// quarter is the caller's per-sample push() (a store and the write pointer's increment through
-// memory), a third the band loop (throughput-bound: writing the low-pass so that its recursion is one
-// product and one subtraction, or the STA/PRE updates as one addition each, did not pay), a quarter
-// the spike stage.
+// BM_DetectorOnly, detector alone, 51.2 kHz, one push per sample): ~2.4 ns per sample (1.24-1.26 ms
+// per 10 s against 1.40-1.44 ms in the same session before the per-run winsorisation limit, the float
+// demodulation, the vectorised re-sum, the steady path of band_blocks() and the one-pass spike stage;
+// bench_detector, one detector restarted: 2.2 against 2.8 ns per sample, spans 1.7 against 2.3 ns),
+// ~3.5 ns with one block per run (longer runs: ~8 % less at 3.2 ms, not worth their delay); 4 ns
+// before the vectorised kernels of decide_blocks() and band_blocks(), 13 ns for the former per-sample
+// chain. About a quarter of what is left is the caller's per-sample push() (a store and the write
+// pointer's increment through memory: ~0.3 ms per 10 s), a quarter the spike stage, the rest the band
+// loop (~180 instructions per band sample with its FIR, SSE2 two-operand code; throughput-bound: a
+// low-pass written so that its recursion is one product and one subtraction, STA/PRE updates as one
+// addition each, an LTA capped by its previous value, ring slots as plain pointers, a short path for
+// hold-offs, residual vectors aligned on the block's third sample did not pay).
 //
 //  1. Spikes (isolated outliers). Residual of the 4-neighbour cubic interpolation
-//        r[n] = x[n] - (-x[n-2] + 4 x[n-1] + 4 x[n+1] - x[n+2]) / 6,
+//        r[n] = x[n] - (-x[n-2] + 4 x[n-1] + 4 x[n+1] - x[n+2]) / 6
+//             = x[n] + (x[n-2] + x[n+2]) / 6 - (x[n-1] + x[n+1]) 2/3   (computed so, in float),
 //     which is ~theta^4/6 of the amplitude for a sinusoid of theta rad/sample (3e-4 for 854 Hz at
 //     25.6 kHz) and 1.39 sigma for white noise. Sample n is a spike when |r[n]| exceeds spike_mad
 //     robust-MAD units and a quarter of its neighbours' magnitude (a sampled force-pulse kink leaves
@@ -32,7 +36,10 @@
 //     isolated. A spike is counted, recorded, and replaced by the interpolation for the later stages,
 //     so it can never trigger. Per block the residuals are computed in one vectorisable pass and only
 //     blocks holding a residual above spike_mad MAD (rare: spikes and sharp impact onsets) run the
-//     sequential isolation test. The MAD is a winsorised running mean of |r| (time constant lta_s,
+//     sequential isolation test. When the blocks are whole vectors of four (51.2 kHz at the defaults)
+//     and the scale is warm, the residuals, clipped sums and maxima of a run's blocks are computed in
+//     one pass, then tested and applied in order (after a block with a candidate, the rest of the run
+//     block by block: its spike test may correct the next block's first residuals). The MAD is a winsorised running mean of |r| (time constant lta_s,
 //     updated once per block with the block's mean of min(|r|, 3 mean)), converted with the Gaussian
 //     ratios MAD = 0.6745 sd, E|r| = 0.7979 sd. The winsorisation limit 3 mean is taken once per run
 //     (as of the run's start, once the scale is warm): the blocks' clipped sums then do not wait for
@@ -76,7 +83,9 @@
 //  3. Energy e. STA = boxcar mean over sta_s (rounded to band samples); STA and PRE (stage 4) are
 //     running sums, re-summed from the history once per pre-window (41 band samples at the defaults) in
 //     four interleaved partial sums, so their rounding cannot accumulate (a 41-step addition chain
-//     before: ~4 % of the detector). LTA = exponential mean (time
+//     before: ~4 % of the detector). Band samples that are armed, with full windows and a running LTA
+//     (most of them) take a short path chosen once per chunk of band samples, whose trigger pre-test
+//     is a little more permissive than stage 4's (folded constants, margin 1e-9); stage 4 decides. LTA = exponential mean (time
 //     constant lta_s; a cumulative mean at the start) of min(e, 3 LTA), frozen from a trigger to the end
 //     of its hold-off: an impact can raise it only slowly. For Gaussian noise the capped mean is 0.857
 //     of the power (E min(z^2, 3) = 0.857), which is divided out.
