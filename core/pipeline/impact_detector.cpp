@@ -33,6 +33,8 @@ Biquad make_biquad(double f_hz, double q, double fs, bool high) {
 }
 
 constexpr double kSixth = 1.0 / 6.0;
+// The interpolation residual (stage 1) in float as x[n] + (x[n-2] + x[n+2]) / 6 - (x[n-1] + x[n+1]) 2/3.
+constexpr float kSixthF = 1.0f / 6.0f, kTwoThirdsF = 2.0f / 3.0f;
 
 // Four floats in one register (SSE2 on x86-64, NEON on AArch64), with GCC/Clang vector extensions:
 // the four partial sums below are four independent lanes. Written as plain loops over four scalar
@@ -53,6 +55,15 @@ inline F4 load4(const float* p) { return *reinterpret_cast<const F4u*>(p); }
 inline void store4(float* p, F4 v) { *reinterpret_cast<F4u*>(p) = v; }
 
 inline float lanes_sum(F4 s) { return (s[0] + s[1]) + (s[2] + s[3]); }
+
+// {lanes_sum(a[0]), ..., lanes_sum(a[3])}, the same additions in the same order: pairs of lanes
+// summed in one add for two vectors at a time, then the pairs of pairs.
+inline F4 lanes_sum4(const F4 (&a)[4]) {
+  const I4 even = {0, 2, 4, 6}, odd = {1, 3, 5, 7};
+  const F4 p = __builtin_shuffle(a[0], a[1], even) + __builtin_shuffle(a[0], a[1], odd);  // a0 01 23, a1 01 23
+  const F4 q = __builtin_shuffle(a[2], a[3], even) + __builtin_shuffle(a[2], a[3], odd);
+  return __builtin_shuffle(p, q, even) + __builtin_shuffle(p, q, odd);
+}
 
 // Dot products of the samples with the real and imaginary FIR taps (float, see the header: stage 2a),
 // n a multiple of 4.
@@ -77,7 +88,23 @@ void fir_steps(const float* x, std::size_t step, std::size_t count, const float*
     gr[v] = load4(g_re + 4 * v);
     gi[v] = load4(g_im + 4 * v);
   }
-  for (std::size_t j = 0; j < count; ++j, x += step) {
+  std::size_t j = 0;
+  for (; j + 4 <= count; j += 4, x += 4 * step) {
+    // Four windows at once, their lane sums by a transposition (the same sums as lanes_sum()).
+    F4 a_re[4], a_im[4];
+    for (std::size_t u = 0; u < 4; ++u) {
+      a_re[u] = F4{0, 0, 0, 0};
+      a_im[u] = F4{0, 0, 0, 0};
+      for (std::size_t v = 0; v < NV; ++v) {
+        const F4 xv = load4(x + u * step + 4 * v);
+        a_re[u] += gr[v] * xv;
+        a_im[u] += gi[v] * xv;
+      }
+    }
+    store4(re + j, lanes_sum4(a_re));
+    store4(im + j, lanes_sum4(a_im));
+  }
+  for (; j < count; ++j, x += step) {
     F4 a_re = {0, 0, 0, 0}, a_im = {0, 0, 0, 0};
     for (std::size_t v = 0; v < NV; ++v) {
       const F4 xv = load4(x + 4 * v);
@@ -130,6 +157,34 @@ inline bool clipped_sum_any_above(const float* r, std::size_t n, float clip, flo
   }
   sum = static_cast<double>((s0 + s[1]) + (s[2] + s[3]));
   return above_any;
+}
+
+// p / |p| to first order (one Newton step on |p|^2 = 1): keeps a phasor advanced by products on the
+// unit circle.
+std::complex<double> renormalised(std::complex<double> p) {
+  const double g = 0.5 * (3.0 - (p.real() * p.real() + p.imag() * p.imag()));
+  return {p.real() * g, p.imag() * g};
+}
+
+// Sum of the ring entries eh[i & mask], i in [lo, hi), in four interleaved partial sums (two
+// two-double vectors: a short dependency chain).
+double ring_sum(const double* eh, std::uint64_t mask, std::uint64_t lo, std::uint64_t hi) {
+  using V2du = double __attribute__((vector_size(16), aligned(8)));
+  V2d a = {0.0, 0.0}, c = {0.0, 0.0};
+  for (std::uint64_t i = lo; i < hi;) {
+    const std::uint64_t p = i & mask;
+    const std::uint64_t n = std::min(hi - i, mask + 1 - p);  // contiguous up to the ring's end
+    const double* q = eh + p;
+    std::uint64_t k = 0;
+    for (; k + 4 <= n; k += 4) {
+      a += *reinterpret_cast<const V2du*>(q + k);
+      c += *reinterpret_cast<const V2du*>(q + k + 2);
+    }
+    for (; k < n; ++k) a[0] += q[k];
+    i += n;
+  }
+  const V2d s = a + c;
+  return s[0] + s[1];
 }
 
 }  // namespace
@@ -194,6 +249,16 @@ ImpactDetector::ImpactDetector(const ImpactDetectorConfig& cfg, double fs, std::
     g_im_[taps_ - 1 - k] = static_cast<float>(h * std::sin(w * static_cast<double>(k)));
   }
   rot_d_ = std::polar(1.0, -w * static_cast<double>(dec_));
+  // Demodulation phasors: e^{-i w D m} = base(m / kGroup) e^{-i w D (m mod kGroup)}, the second factor
+  // from a float table, the base advanced in double by e^{-i w D kGroup} and renormalised per group.
+  pw_re_.fill(0.0f);
+  pw_im_.fill(0.0f);
+  for (std::size_t k = 0; k < kGroup; ++k) {
+    const std::complex<double> p = std::polar(1.0, -w * static_cast<double>(dec_ * k));
+    pw_re_[k] = static_cast<float>(p.real());
+    pw_im_[k] = static_cast<float>(p.imag());
+  }
+  rot_g_ = std::polar(1.0, -w * static_cast<double>(dec_ * kGroup));
   proto_.s1 = Biquad::lowpass(bw, 0.54119610014619698, fs_d_);  // 1 / (2 cos(pi/8))
   proto_.s2 = Biquad::lowpass(bw, 1.3065629648763766, fs_d_);   // 1 / (2 cos(3 pi/8))
   // band_blocks() relies on b1 = 2 b0 and b2 = b0 exactly (see there).
@@ -294,6 +359,11 @@ ImpactDetector::ImpactDetector(const ImpactDetectorConfig& cfg, double fs, std::
   // before the run's end pointer leaves fewer than kReadAhead slots after it.
   buf_x_.assign(hist_ + 16 * run_ + run_ + kSpikeDelay + 8 + kSpikeDelay + kReadAhead + dec_ + 8, 0.0f);
   buf_r_.assign(buf_x_.size(), 0.0f);
+  // Block of the run of each band sample of a band_blocks() call (finish() passes up to
+  // run_ + kSpikeDelay - 1 samples).
+  sub_of_.resize((run_ + kSpikeDelay) / dec_ + 1);
+  for (std::size_t j = 0; j < sub_of_.size(); ++j)
+    sub_of_[j] = static_cast<std::uint8_t>(std::min(j / (blk_ / dec_), kMaxRunBlocks - 1));
   restart(0);
 }
 
@@ -301,14 +371,22 @@ void ImpactDetector::run_chain(const std::vector<double>& x, std::vector<std::co
   // The trigger band of a record x starting at rest, block grid at x[0]: as process_block().
   LowPass4 li = proto_, lq = proto_;
   std::complex<double> ph{1.0, 0.0};
+  std::size_t k_ph = 0;
   y.clear();
   std::vector<float> padded(taps_ - 1, 0.0f);
   for (double v : x) padded.push_back(static_cast<float>(v));
   for (std::size_t j = dec_ - 1; j < x.size(); j += dec_) {
     double re = 0.0, im = 0.0;
     fir_dot(padded.data() + j, g_re_.data(), g_im_.data(), taps_, re, im);  // x[j - L + 1 .. j]
-    const std::complex<double> z = std::complex<double>(re, im) * ph;
-    ph *= rot_d_;
+    // As band_blocks(): float products with the phasor base(m) table(m mod kGroup).
+    const auto br = static_cast<float>(ph.real()), bi = static_cast<float>(ph.imag());
+    const float pr = br * pw_re_[k_ph] - bi * pw_im_[k_ph], pi = br * pw_im_[k_ph] + bi * pw_re_[k_ph];
+    const auto fr = static_cast<float>(re), fi = static_cast<float>(im);
+    const std::complex<double> z(static_cast<double>(fr * pr - fi * pi), static_cast<double>(fr * pi + fi * pr));
+    if (++k_ph == kGroup) {
+      k_ph = 0;
+      ph = renormalised(ph * rot_g_);
+    }
     y.emplace_back(li.step(z.real()), lq.step(z.imag()));
   }
 }
@@ -322,6 +400,7 @@ void ImpactDetector::restart(std::uint64_t first_index) {
   due_p_ = wp_ + run_ + kSpikeDelay;
   mad_sum_ = 0.0;
   mad_count_ = 0;
+  run_clip_ready_ = false;
   lp_i_ = proto_;
   lp_q_ = proto_;
   phasor_ = {1.0, 0.0};
@@ -432,12 +511,11 @@ void ImpactDetector::decide_block(std::uint64_t b, std::size_t len, std::size_t 
   const std::size_t d = len;
   const float* x = buf_x_.data() + (b - base_);
   float* r = buf_r_.data() + (b - base_);
-  constexpr float kSixthF = 1.0f / 6.0f;
   // Robust scale: MAD from the winsorised mean |r| (Gaussian: E|r| = 0.7979 sd, MAD = 0.6745 sd).
   // The absolute floor keeps float32 rounding of an otherwise noise-free signal from looking noisy
   // or, with digital silence, everything from looking like a spike.
   const std::size_t first = b == seg_start_ ? 2 : 0;
-  const auto clip = static_cast<float>(3.0 * mad_sum_ + 1e-30);
+  const float clip = block_clip();
   const bool scan = test_spikes && mad_count_ >= kMadWarmup;
   const double t_mad = spike_k_ * std::max(0.6745 / 0.7979 * mad_sum_, 1e-9);
   if (b == seg_start_) r[0] = r[1] = 0.0f;
@@ -446,7 +524,7 @@ void ImpactDetector::decide_block(std::uint64_t b, std::size_t len, std::size_t 
     const float* __restrict xs = x;
     float* __restrict rs = r;
     for (std::size_t i = 2; i < 2 + n_res; ++i)
-      rs[i] = xs[i] - (-xs[i - 2] + 4.0f * xs[i - 1] + 4.0f * xs[i + 1] - xs[i + 2]) * kSixthF;
+      rs[i] = (xs[i] + (xs[i - 2] + xs[i + 2]) * kSixthF) - (xs[i - 1] + xs[i + 1]) * kTwoThirdsF;
   }
   for (std::size_t i = 2 + n_res; i < d + 2; ++i) r[i] = 0.0f;  // end of segment: no right neighbours
   if (scan) {
@@ -491,12 +569,59 @@ void ImpactDetector::decide_blocks(std::uint64_t b, std::size_t count) {
   // residuals past b + blk + 1 from samples not yet pushed, which the next block recomputes before
   // anything reads them (the buffer has room). A block with a candidate is decided again by
   // decide_block() (the same residuals, then the isolation test).
-  constexpr float kSixthF = 1.0f / 6.0f;
-  const F4 four = {4.0f, 4.0f, 4.0f, 4.0f}, sixth = {kSixthF, kSixthF, kSixthF, kSixthF};
+  const F4 sixth = {kSixthF, kSixthF, kSixthF, kSixthF}, two_thirds = {kTwoThirdsF, kTwoThirdsF, kTwoThirdsF, kTwoThirdsF};
   constexpr std::int32_t kNoSign = 0x7fffffff;
   const I4 no_sign = {kNoSign, kNoSign, kNoSign, kNoSign};
   const std::size_t d = blk_, n_vec = (d + 2 + 3) / 4, n_sum = d / 4;
-  for (std::size_t k = 0; k < count; ++k) {
+  std::size_t k0 = 0;  // blocks before k0 are decided
+  if (d % 4 == 0 && count > 1 && mad_count_ >= kMadWarmup && b != seg_start_) {
+    // Blocks of whole vectors with a warm scale (and so one winsorisation limit for the run): the
+    // residuals, clipped sums and maxima of all count blocks in one pass (the vectors of the
+    // per-block path below, the same sums), then the blocks' pre-tests and scale updates in order.
+    // The first block with a candidate is decided by decide_block(), which may correct r[0], r[1] of
+    // the next one: the blocks after it take the per-block path.
+    const float* x = buf_x_.data() + (b - base_);
+    float* r = buf_r_.data() + (b - base_);
+    const float clip = block_clip();
+    const F4 vclip = {clip, clip, clip, clip};
+    const std::size_t nv = d / 4;
+    auto residuals = [&](std::size_t v) {
+      const float* xv = x + 4 * v;
+      return (load4(xv) + (load4(xv - 2) + load4(xv + 2)) * sixth) - (load4(xv - 1) + load4(xv + 1)) * two_thirds;  // as decide_block()
+    };
+    std::array<F4, kMaxRunBlocks> sums, tops;
+    F4 rv = residuals(0);
+    rv[0] = r[0];  // from the previous run
+    rv[1] = r[1];
+    for (std::size_t k = 0; k < count; ++k) {
+      F4 sum = {0, 0, 0, 0}, top = {0, 0, 0, 0};
+      for (std::size_t v = 0; v < nv; ++v) {
+        const std::size_t i = k * nv + v;
+        if (i > 0) rv = residuals(i);
+        store4(r + 4 * i, rv);
+        const F4 a = reinterpret_cast<F4>(reinterpret_cast<I4>(rv) & no_sign);  // |r|
+        sum += vclip < a ? vclip : a;                                            // std::min(a, clip)
+        top = top < a ? a : top;                                                 // std::max(top, a)
+      }
+      sums[k] = sum;
+      tops[k] = top;
+    }
+    store4(r + count * d, residuals(count * nv));  // r[0], r[1] of the next run (and two slots past)
+    for (; k0 < count; ++k0) {
+      const auto above = static_cast<float>(spike_k_ * std::max(0.6745 / 0.7979 * mad_sum_, 1e-9));
+      const F4 top = tops[k0], sum = sums[k0];
+      if (std::max(std::max(top[0], top[1]), std::max(top[2], top[3])) > above) {
+        decide_block(b + k0 * d, d, d, true);
+        note_scale(k0);
+        ++k0;
+        break;
+      }
+      const auto sm = static_cast<double>((sum[0] + sum[1]) + (sum[2] + sum[3]));
+      mad_sum_ += mad_beta_ * (sm * inv_blk_ - mad_sum_);  // as in decide_block()
+      note_scale(k0);
+    }
+  }
+  for (std::size_t k = k0; k < count; ++k) {
     const std::uint64_t bk = b + k * d;
     if (mad_count_ < kMadWarmup || bk == seg_start_) {
       decide_block(bk, d, d, true);
@@ -505,15 +630,14 @@ void ImpactDetector::decide_blocks(std::uint64_t b, std::size_t count) {
     }
     const float* x = buf_x_.data() + (bk - base_);
     float* r = buf_r_.data() + (bk - base_);
-    const auto clip = static_cast<float>(3.0 * mad_sum_ + 1e-30);  // as in decide_block()
+    const float clip = block_clip();  // as in decide_block()
     const auto above = static_cast<float>(spike_k_ * std::max(0.6745 / 0.7979 * mad_sum_, 1e-9));
-    const F4 vclip = {clip, clip, clip, clip}, vabove = {above, above, above, above};
+    const F4 vclip = {clip, clip, clip, clip};
     auto residuals = [&](std::size_t v) {
       const float* xv = x + 4 * v;
-      return load4(xv) - (-load4(xv - 2) + four * load4(xv - 1) + four * load4(xv + 1) - load4(xv + 2)) * sixth;
+      return (load4(xv) + (load4(xv - 2) + load4(xv + 2)) * sixth) - (load4(xv - 1) + load4(xv + 1)) * two_thirds;  // as decide_block()
     };
-    F4 sum = {0, 0, 0, 0};
-    I4 any = {0, 0, 0, 0};
+    F4 sum = {0, 0, 0, 0}, top = {0, 0, 0, 0};  // top: lane-wise max |r| for the candidate test
     F4 rv = residuals(0);
     rv[0] = r[0];
     rv[1] = r[1];
@@ -522,7 +646,7 @@ void ImpactDetector::decide_blocks(std::uint64_t b, std::size_t count) {
     for (; v <= n_sum; ++v) {
       const F4 a = reinterpret_cast<F4>(reinterpret_cast<I4>(rv) & no_sign);  // |r| of vector v - 1
       sum += vclip < a ? vclip : a;                                            // std::min(a, clip)
-      any |= a > vabove;
+      top = top < a ? a : top;                                                 // std::max(top, a)
       rv = residuals(v);
       store4(r + 4 * v, rv);
     }
@@ -531,7 +655,7 @@ void ImpactDetector::decide_blocks(std::uint64_t b, std::size_t count) {
       store4(r + 4 * v, rv);
     }
     float s0 = sum[0];
-    bool candidate = (any[0] | any[1] | any[2] | any[3]) != 0;
+    bool candidate = std::max(std::max(top[0], top[1]), std::max(top[2], top[3])) > above;
     for (std::size_t i = 4 * n_sum; i < d; ++i) {  // d mod 4 left: lane 0, in order
       const float a = std::abs(r[i]);
       s0 += std::min(a, clip);
@@ -560,12 +684,10 @@ void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
   const float* const g_re = g_re_.data();
   const float* const g_im = g_im_.data();
   const std::size_t taps = taps_;
-  const std::size_t per_block = blk_ / dec_;
   double* const eh = e_hist_.data();
   const std::uint64_t mask = e_mask_;
   const std::uint64_t n_fill = fill_.size();
   const std::uint64_t sta_d = sta_d_, full_d = sta_d_ + pre_d_;
-  const double rot_re = rot_d_.real(), rot_im = rot_d_.imag();
   const double keep = lta_keep_, alpha = lta_alpha_, cap_alpha = lta_cap_alpha_;
   auto splat = [](double v) { return V2d{v, v}; };
   const Biquad& c1 = proto_.s1;
@@ -577,36 +699,56 @@ void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
   const V2d b0_2 = splat(c2.b0), a1_2 = splat(c2.a1), a2_2 = splat(c2.a2);
   V2d s1_1 = {lp_i_.s1.s1, lp_q_.s1.s1}, s2_1 = {lp_i_.s1.s2, lp_q_.s1.s2};
   V2d s1_2 = {lp_i_.s2.s1, lp_q_.s2.s1}, s2_2 = {lp_i_.s2.s2, lp_q_.s2.s2};
-  double ph_re = phasor_.real(), ph_im = phasor_.imag();
+  std::complex<double> ph = phasor_;
   double sta_sum = sta_sum_, pre_sum = pre_sum_, lta = lta_;
   std::uint64_t m = band_count_;
-  std::size_t sub = 0, sub_left = per_block;  // block of the run (its scale: scale_at_[sub])
+  const std::uint8_t* const sub_of = sub_of_.data();  // block of the run (its scale: scale_at_[sub_of[j0 + j]])
   std::size_t resum_left = resum_left_;
   std::uint64_t lta_count = lta_count_;
-  constexpr std::size_t kChunk = 16;  // band samples whose FIR outputs are computed in one pass
-  float fir_re[kChunk], fir_im[kChunk];
-  for (std::size_t j0 = 0; j0 < count; j0 += kChunk) {
-    const std::size_t n_chunk = std::min(kChunk, count - j0);
+  const double k_sta = inv_sta_d_ * (1.0 + 1e-9), k_lta = ratio_ / kCapBias, k_pre = ratio_ * inv_pre_d_;
+  // The STA/PRE sums from the history of the band samples before `have`.
+  auto resum = [&](std::uint64_t have) {
+    resum_left = pre_d_;
+    const std::uint64_t pre_lo = have - std::min<std::uint64_t>(full_d, have);
+    const std::uint64_t sta_lo = have - std::min<std::uint64_t>(sta_d, have);
+    sta_sum = ring_sum(eh, mask, sta_lo, have);
+    pre_sum = ring_sum(eh, mask, pre_lo, sta_lo);
+  };
+  // FIR outputs and demodulated values of up to kGroup band samples (padded for the vectors of four).
+  // (Members, zeroed once: the vectors of four read past a chunk's end.)
+  float* const fir_re = fir_re_.data();
+  float* const fir_im = fir_im_.data();
+  float* const z_re = z_re_.data();
+  float* const z_im = z_im_.data();
+  const float* const pw_re = pw_re_.data();
+  const float* const pw_im = pw_im_.data();
+  for (std::size_t j0 = 0; j0 < count;) {
+    // Chunks end at the phasor groups' boundaries (m a multiple of kGroup): the phasor of band sample
+    // m depends on m only.
+    const auto i0 = static_cast<std::size_t>(m % kGroup);
+    const std::size_t n_chunk = std::min(kGroup - i0, count - j0);
     fir_steps_any(x + j0 * dec_, dec_, n_chunk, g_re, g_im, taps, fir_re, fir_im);
+    {
+      // z = (re + i im) e^{-i w D m}, in float (as run_chain()).
+      const auto br = static_cast<float>(ph.real()), bi = static_cast<float>(ph.imag());
+      const F4 vbr = {br, br, br, br}, vbi = {bi, bi, bi, bi};
+      for (std::size_t v = 0; v < n_chunk; v += 4) {
+        const F4 tr = load4(pw_re + i0 + v), ti = load4(pw_im + i0 + v);
+        const F4 pr = vbr * tr - vbi * ti, pi = vbr * ti + vbi * tr;
+        const F4 fr = load4(fir_re + v), fi = load4(fir_im + v);
+        store4(z_re + v, fr * pr - fi * pi);
+        store4(z_im + v, fr * pi + fi * pr);
+      }
+    }
+    if (i0 + n_chunk == kGroup) ph = renormalised(ph * rot_g_);
+    // Steady: past the fill-up, full windows, the LTA raised, running (not frozen, past its cumulative
+    // start) and armed (no confirmation, hold-off or start-up rule). The chunk's band samples then take
+    // the short path below (the same operations as the general path in this state) until one triggers;
+    // only decide_band_sample() changes these conditions.
+    bool steady = m >= n_fill && m >= full_d && lta_raised_ && m >= lta_frozen_until_ && lta_count > lta_d_ &&
+                  m + 1 >= warmup_d_ && !confirming_ && m >= holdoff_end_ && !startup_;
     for (std::size_t j = 0; j < n_chunk; ++j, ++m) {
-      if (sub_left == 0) {
-        ++sub;
-        sub_left = per_block;
-      }
-      --sub_left;
-      const auto re = static_cast<double>(fir_re[j]), im = static_cast<double>(fir_im[j]);
-      // z = (re + i im) e^{-i w j}; the phasor advances by e^{-i w D} per band sample, renormalised
-      // every 64 (Newton step on |p|^2 = 1) so rounding cannot make it drift. (Complex products
-      // written out: (a + ib)(c + id) = (ac - bd) + i(ad + bc).)
-      const V2d z = {re * ph_re - im * ph_im, re * ph_im + im * ph_re};
-      const double next_re = ph_re * rot_re - ph_im * rot_im;
-      ph_im = ph_re * rot_im + ph_im * rot_re;
-      ph_re = next_re;
-      if ((m & 63) == 0) {
-        const double g = 0.5 * (3.0 - (ph_re * ph_re + ph_im * ph_im));
-        ph_re *= g;
-        ph_im *= g;
-      }
+      const V2d z = {static_cast<double>(z_re[j]), static_cast<double>(z_im[j])};
       // 4th-order low-pass on I and Q (Biquad::step, two stages).
       const V2d bz_1 = b0_1 * z;
       const V2d y1 = bz_1 + s1_1;
@@ -617,6 +759,28 @@ void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
       s1_2 = ((bz_2 + bz_2) + s2_2) - a1_2 * y;
       s2_2 = bz_2 - a2_2 * y;
       double e = y[0] * y[0] + y[1] * y[1];
+      if (steady) {
+        eh[m & mask] = e;
+        sta_sum += e;
+        const double moved = eh[(m - sta_d) & mask];
+        sta_sum -= moved;
+        pre_sum += moved;
+        pre_sum -= eh[(m - full_d) & mask];
+        if (--resum_left == 0) resum(m + 1);
+        ++lta_count;
+        lta = keep * lta + std::min(alpha * e, cap_alpha * lta);
+        // The trigger test of decide_band_sample() with the constants folded, and by a margin of 1e-9
+        // more permissive than its rounding can make a difference (negative sums, the floor 1e-30:
+        // see there): decide_band_sample() decides whenever that test can fire.
+        if (!(sta_sum * k_sta > std::max(lta * k_lta, pre_sum * k_pre))) continue;
+        steady = false;
+        band_count_ = m + 1;
+        sta_sum_ = sta_sum;
+        pre_sum_ = pre_sum;
+        lta_ = lta;
+        decide_band_sample(m, e, scale_at_[sub_of[j0 + j]]);
+        continue;
+      }
       // While the chain fills up after a (re)start, stationary input gives E[e] = E_inf g(m): divide by
       // g so the start of a record is not a rising edge.
       if (m < n_fill) e /= fill_[static_cast<std::size_t>(m)];
@@ -630,13 +794,7 @@ void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
         pre_sum += moved;
         if (m >= full_d) pre_sum -= eh[(m - full_d) & mask];
       }
-      if (--resum_left == 0) {
-        resum_left = pre_d_;
-        sta_sum = pre_sum = 0.0;
-        const std::uint64_t have = m + 1;
-        for (std::uint64_t k = 0; k < std::min<std::uint64_t>(sta_d, have); ++k) sta_sum += eh[(m - k) & mask];
-        for (std::uint64_t k = sta_d; k < std::min<std::uint64_t>(full_d, have); ++k) pre_sum += eh[(m - k) & mask];
-      }
+      if (--resum_left == 0) resum(m + 1);
       // LTA: cumulative mean at first, then the capped exponential mean; frozen around triggers. The
       // fill-up samples before the warm-up are divided by a tiny g and are unreliable; since the capped
       // mean may grow by at most (1 + 2/n) per sample, a start far too low would take ~100 ms to recover
@@ -644,8 +802,8 @@ void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
       // white-noise band power measured by the spike stage (see white_band_power()), or, when that scale
       // is not ready yet (it needs kMadWarmup samples: at 8 kHz with D = 1 the warm-up ends after ~24),
       // at the first band sample after the warm-up where it is. Once per segment.
-      if (!lta_raised_ && m + 1 >= warmup_d_ && scale_ready_[sub]) {
-        lta = std::max(lta, kCapBias * white_band_power(scale_at_[sub]));
+      if (!lta_raised_ && m + 1 >= warmup_d_ && scale_ready_[sub_of[j0 + j]]) {
+        lta = std::max(lta, kCapBias * white_band_power(scale_at_[sub_of[j0 + j]]));
         lta_raised_ = true;
       }
       if (m >= lta_frozen_until_) {
@@ -676,8 +834,9 @@ void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
       sta_sum_ = sta_sum;
       pre_sum_ = pre_sum;
       lta_ = lta;
-      decide_band_sample(m, e, scale_at_[sub]);
+      decide_band_sample(m, e, scale_at_[sub_of[j0 + j]]);
     }
+    j0 += n_chunk;
   }
   resum_left_ = resum_left;
   lta_count_ = lta_count;
@@ -685,7 +844,7 @@ void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
   sta_sum_ = sta_sum;
   pre_sum_ = pre_sum;
   lta_ = lta;
-  phasor_ = {ph_re, ph_im};
+  phasor_ = ph;
   lp_i_.s1.s1 = s1_1[0];
   lp_q_.s1.s1 = s1_1[1];
   lp_i_.s1.s2 = s2_1[0];
@@ -720,6 +879,7 @@ void ImpactDetector::process_block() {
   // they ran one at a time), the scale after each block kept for the band samples in it, then the
   // trigger band over the whole run.
   const std::uint64_t b = next_block_;
+  start_run_scale();
   decide_blocks(b, subs_);
   band_blocks(b, run_ / dec_);
   next_block_ += run_;
@@ -733,6 +893,7 @@ void ImpactDetector::finish() {
   const auto avail = static_cast<std::size_t>(next_index() - next_block_);
   const std::uint64_t b = next_block_;
   const std::size_t k = avail >= kSpikeDelay ? (avail - kSpikeDelay) / blk_ : 0;
+  start_run_scale();
   decide_blocks(b, k);
   const std::size_t rest = avail - k * blk_;
   const std::size_t len = rest / dec_ * dec_;
@@ -833,6 +994,11 @@ void ImpactDetector::decide_band_sample(std::uint64_t m, double e, double mad) {
     confirmed_ = false;
     lta_frozen_until_ = m + std::max<std::size_t>(holdoff_d_, confirm_d_) + 1;
   }
+}
+
+void ImpactDetector::start_run_scale() {
+  run_clip_ = static_cast<float>(3.0 * mad_sum_ + 1e-30);
+  run_clip_ready_ = mad_count_ >= kMadWarmup;
 }
 
 void ImpactDetector::note_scale(std::size_t k) {

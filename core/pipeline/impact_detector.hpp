@@ -10,13 +10,22 @@
 // the run only delays the decisions). Blocks and runs are aligned to the segment start, so the output
 // does not depend on how the caller splits the stream (bit-identical for any push pattern; tested).
 // All state is preallocated; push() never allocates (tested). Measured (bench/bench_pipeline
-// BM_DetectorOnly, detector alone, 51.2 kHz, one push per sample): ~2.7 ns per sample, ~3.5 ns with
-// one block per run (longer runs: no measurable gain at 2 ms, ~5 % at 3.2 ms, not worth their
-// delay); 4 ns before the vectorised kernels of decide_blocks() and band_blocks(), 13 ns for the
-// former per-sample chain.
+// BM_DetectorOnly, detector alone, 51.2 kHz, one push per sample): ~2.4 ns per sample (1.24-1.26 ms
+// per 10 s against 1.40-1.44 ms in the same session before the per-run winsorisation limit, the float
+// demodulation, the vectorised re-sum, the steady path of band_blocks() and the one-pass spike stage;
+// bench_detector, one detector restarted: 2.2 against 2.8 ns per sample, spans 1.7 against 2.3 ns),
+// ~3.5 ns with one block per run (longer runs: ~8 % less at 3.2 ms, not worth their delay); 4 ns
+// before the vectorised kernels of decide_blocks() and band_blocks(), 13 ns for the former per-sample
+// chain. About a quarter of what is left is the caller's per-sample push() (a store and the write
+// pointer's increment through memory: ~0.3 ms per 10 s), a quarter the spike stage, the rest the band
+// loop (~180 instructions per band sample with its FIR, SSE2 two-operand code; throughput-bound: a
+// low-pass written so that its recursion is one product and one subtraction, STA/PRE updates as one
+// addition each, an LTA capped by its previous value, ring slots as plain pointers, a short path for
+// hold-offs, residual vectors aligned on the block's third sample did not pay).
 //
 //  1. Spikes (isolated outliers). Residual of the 4-neighbour cubic interpolation
-//        r[n] = x[n] - (-x[n-2] + 4 x[n-1] + 4 x[n+1] - x[n+2]) / 6,
+//        r[n] = x[n] - (-x[n-2] + 4 x[n-1] + 4 x[n+1] - x[n+2]) / 6
+//             = x[n] + (x[n-2] + x[n+2]) / 6 - (x[n-1] + x[n+1]) 2/3   (computed so, in float),
 //     which is ~theta^4/6 of the amplitude for a sinusoid of theta rad/sample (3e-4 for 854 Hz at
 //     25.6 kHz) and 1.39 sigma for white noise. Sample n is a spike when |r[n]| exceeds spike_mad
 //     robust-MAD units and a quarter of its neighbours' magnitude (a sampled force-pulse kink leaves
@@ -27,9 +36,16 @@
 //     isolated. A spike is counted, recorded, and replaced by the interpolation for the later stages,
 //     so it can never trigger. Per block the residuals are computed in one vectorisable pass and only
 //     blocks holding a residual above spike_mad MAD (rare: spikes and sharp impact onsets) run the
-//     sequential isolation test. The MAD is a winsorised running mean of |r| (time constant lta_s,
+//     sequential isolation test. When the blocks are whole vectors of four (51.2 kHz at the defaults)
+//     and the scale is warm, the residuals, clipped sums and maxima of a run's blocks are computed in
+//     one pass, then tested and applied in order (after a block with a candidate, the rest of the run
+//     block by block: its spike test may correct the next block's first residuals). The MAD is a winsorised running mean of |r| (time constant lta_s,
 //     updated once per block with the block's mean of min(|r|, 3 mean)), converted with the Gaussian
-//     ratios MAD = 0.6745 sd, E|r| = 0.7979 sd. Decision delay: 4 samples.
+//     ratios MAD = 0.6745 sd, E|r| = 0.7979 sd. The winsorisation limit 3 mean is taken once per run
+//     (as of the run's start, once the scale is warm): the blocks' clipped sums then do not wait for
+//     each other's scale updates (a serial chain of ~60 cycles per block before); it lags the scale by
+//     at most 1.2 ms against its time constant lta_s. The spike threshold uses the current scale.
+//     Decision delay: 4 samples.
 //     Samples and residuals are float: the input is float32 already, and the residual's rounding
 //     error (~1e-7 of the neighbours' magnitude) is far below both limits (12 MAD of any real noise,
 //     a quarter of the neighbours).
@@ -41,7 +57,11 @@
 //          samples as
 //              z_m = e^{-i w j} sum_k h[k] e^{+i w k} x[j - k],   w = 2 pi f_c / fs, j = step end,
 //          i.e. a dot product of the samples with a precomputed complex tap table (the band-pass
-//          FIR h[k] e^{i w k}) and one phasor rotation per band sample. Its nulls sit on the multiples
+//          FIR h[k] e^{i w k}) and one phasor rotation per band sample, in float: the phasor of band
+//          sample m is a double base for each group of 16 band samples (advanced by e^{-i w D 16} and
+//          renormalised per group, a function of m only) times a float table e^{-i w D (m mod 16)},
+//          computed four band samples at a time apart from the recursive part (rounding ~1e-7 of the
+//          band content, like the float FIR). Its nulls sit on the multiples
 //          of the decimated rate fs_d = fs / D (>= 40 B, 5120 Hz at the defaults); what aliases into
 //          the +-B band is attenuated by >= 60 dB (|sin(pi f D / fs) / (D sin(pi f / fs))|^2 at
 //          f = fs_d - B). Float taps and sums: the rounding error (~20 taps x 6e-8 of the largest
@@ -60,7 +80,12 @@
 //     StreamProcessor takes from band_power() and one sim-nuisance event past the 10 % acceptance
 //     limit; at 40 B it is 5 %.)
 //
-//  3. Energy e. STA = boxcar mean over sta_s (rounded to band samples). LTA = exponential mean (time
+//  3. Energy e. STA = boxcar mean over sta_s (rounded to band samples); STA and PRE (stage 4) are
+//     running sums, re-summed from the history once per pre-window (41 band samples at the defaults) in
+//     four interleaved partial sums, so their rounding cannot accumulate (a 41-step addition chain
+//     before: ~4 % of the detector). Band samples that are armed, with full windows and a running LTA
+//     (most of them) take a short path chosen once per chunk of band samples, whose trigger pre-test
+//     is a little more permissive than stage 4's (folded constants, margin 1e-9); stage 4 decides. LTA = exponential mean (time
 //     constant lta_s; a cumulative mean at the start) of min(e, 3 LTA), frozen from a trigger to the end
 //     of its hold-off: an impact can raise it only slowly. For Gaussian noise the capped mean is 0.857
 //     of the power (E min(z^2, 3) = 0.857), which is divided out.
@@ -247,6 +272,12 @@ class ImpactDetector {
   void shift_buffer();
   double white_band_power(double mad) const;
   void note_scale(std::size_t k);  // keeps the spike stage's scale after block k of a run
+  void start_run_scale();          // fixes the winsorisation limit of the run's blocks
+  /// Winsorisation limit 3 mean |r| of the scale update: as of the start of the run once the scale is
+  /// warm (so the blocks' clipped sums do not wait for each other's updates), else the current one.
+  float block_clip() const {
+    return run_clip_ready_ ? run_clip_ : static_cast<float>(3.0 * mad_sum_ + 1e-30);
+  }
 
   // configuration (input samples unless named _d: decimated samples)
   double fs_ = 0, fs_d_ = 0;
@@ -257,8 +288,14 @@ class ImpactDetector {
   double inv_blk_ = 1;
   std::size_t subs_ = 1, run_ = 1;      // blocks and samples per processing run
   std::size_t taps_ = 2;                // FIR length L = 2 D
+  std::vector<std::uint8_t> sub_of_;    // band sample j of a run -> its block, j / (blk / D)
   std::vector<float> g_re_, g_im_;      // band-pass FIR h[k] e^{+i w k}, stored reversed (oldest first)
   std::complex<double> rot_d_{1.0, 0.0};  // e^{-i w D}
+  static constexpr std::size_t kGroup = 16;  // band samples per demodulation phasor base
+  std::array<float, kGroup + 4> pw_re_{}, pw_im_{};  // e^{-i w D k}, k < kGroup (zero-padded)
+  std::complex<double> rot_g_{1.0, 0.0};  // e^{-i w D kGroup}
+  // band_blocks() scratch: FIR outputs and demodulated values of a chunk (padded for vectors of four)
+  std::array<float, kGroup + 4> fir_re_{}, fir_im_{}, z_re_{}, z_im_{};
   std::size_t sta_d_ = 1, lta_d_ = 1, holdoff_d_ = 0, confirm_d_ = 1, pre_d_ = 1;
   double inv_sta_d_ = 1, inv_pre_d_ = 1;
   std::size_t warmup_d_ = 1;            // band samples before triggers are allowed
@@ -286,10 +323,12 @@ class ImpactDetector {
   float* due_p_ = nullptr;  // the block starting at next_block_ runs when wp_ reaches this
   double mad_sum_ = 0;           // running winsorised mean |r|
   std::uint64_t mad_count_ = 0;
+  float run_clip_ = 0;          // block_clip() of the current run
+  bool run_clip_ready_ = false;
   std::array<double, kMaxRunBlocks> scale_at_{};  // mad_sum_ after each block of the current run
   std::array<bool, kMaxRunBlocks> scale_ready_{};  // ... and whether it had seen kMadWarmup samples
   LowPass4 lp_i_, lp_q_;
-  std::complex<double> phasor_{1.0, 0.0};
+  std::complex<double> phasor_{1.0, 0.0};  // demodulation phasor base of band_count_'s group
 
   std::vector<double> e_hist_;   // trigger-band power history, by decimated index & mask
   std::uint64_t e_mask_ = 0;
