@@ -583,6 +583,40 @@ TEST(MorletCwtHalfRate, DecimateMatchesDefinition) {
   }
 }
 
+// The float-input overload (vector lanes, a separate float peak pass) gives exactly what the double
+// overload gives for the same values: both widen each sample to double and do the same operations,
+// and max |x| of floats is exact. Lengths cover the vector loop's remainders and the edges; values
+// include negative peaks and a sign-bit-only zero.
+TEST(MorletCwtHalfRate, DecimateFloatInputEqualsDoubleInput) {
+  std::mt19937_64 rng(12);
+  std::normal_distribution<float> normal(0.0f, 1.0f);
+  for (std::size_t n : {1u, 2u, 3u, 5u, 8u, 9u, 10u, 11u, 12u, 13u, 64u, 1893u, 1894u}) {
+    std::vector<float> xf(n);
+    for (float& v : xf) v = normal(rng);
+    if (n > 4) {
+      xf[n / 2] = -5.0f;  // the peak, negative
+      xf[1] = -0.0f;
+    }
+    const std::vector<double> xd(xf.begin(), xf.end());
+    const std::size_t m_out = (n + 1) / 2;
+    std::vector<double> yd(m_out, NAN), yf64(m_out, NAN);
+    std::vector<float> yd32(m_out, NAN), yf32(m_out, NAN);
+    const double pd = decimate_half_121(std::span<const double>(xd), yd, yd32);
+    const double pf = decimate_half_121(std::span<const float>(xf), yf64, yf32);
+    EXPECT_EQ(pf, pd) << "n=" << n;
+    if (n > 4) {
+      EXPECT_EQ(pf, 5.0) << "n=" << n;
+    }
+    for (std::size_t m = 0; m < m_out; ++m) {
+      EXPECT_EQ(yf64[m], yd[m]) << "n=" << n << " m=" << m;
+      EXPECT_EQ(yf32[m], yd32[m]) << "n=" << n << " m=" << m;
+    }
+    std::vector<double> only(m_out, NAN);  // without the float copy
+    EXPECT_EQ(decimate_half_121(std::span<const float>(xf), only, {}), pd);
+    EXPECT_EQ(only, yd);
+  }
+}
+
 // The half-rate transform of the decimated copy equals the exact (time-domain reference) transform of
 // the full-rate signal: two damped tones at 8 kHz input, where the decimation filter's response is far
 // from 1 (H = cos^2(pi f / 8000) = 0.93 at 700 Hz, 0.88 at 900 Hz, 0.78 at the top of the kept band).
