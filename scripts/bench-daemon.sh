@@ -7,8 +7,8 @@
 #
 # BUILD_DIR defaults to build-bench (a Release build: scripts/build.sh build-bench
 # -DCMAKE_BUILD_TYPE=Release). Prints, per run, CPU time (user + system, both threads), wall time and
-# peak RSS, and the real-time factors = recording seconds / CPU seconds and / wall seconds. The
-# recording is generated once into $TMPDIR and reused.
+# peak RSS, and the real-time factors = recording seconds / CPU seconds and / wall seconds, then their
+# medians. The recording is generated once into $TMPDIR and reused; one warm-up run is not reported.
 set -euo pipefail
 here=$(cd "$(dirname "$0")/.." && pwd)
 build=${1:-$here/build-bench}
@@ -28,6 +28,11 @@ events="$tmp/ridgewatch-bench-events.jsonl"
 # The first CPU this shell may run on (its affinity list, e.g. "0,1" or "0-1").
 cpu=$(taskset -pc $$ | sed -E 's/.*: *([0-9]+).*/\1/')
 timing="$tmp/ridgewatch-bench-time.txt"
+results="$tmp/ridgewatch-bench-results.txt"
+: >"$results"
+# One unreported warm-up run: the recording into the page cache, the binaries and libraries loaded
+# (the first run after a build or a while idle otherwise pays tens of ms of system time).
+taskset -c "$cpu" "$build/daemon/ridgewatchd" --replay "$rec.wav" --speed max --events /dev/null 2>/dev/null
 for ((i = 1; i <= runs; i++)); do
   rm -f "$events"  # ridgewatchd appends to an existing event log
   /usr/bin/time -o "$timing" -f "%U %S %e %M" taskset -c "$cpu" "$build/daemon/ridgewatchd" --replay "$rec.wav" \
@@ -35,5 +40,10 @@ for ((i = 1; i <= runs; i++)); do
   read -r user sys wall rss_kb <"$timing"
   awk -v s="$seconds" -v u="$user" -v y="$sys" -v w="$wall" -v r="$rss_kb" -v n="$(wc -l <"$events")" 'BEGIN {
     c = u + y; printf "run: %d events, CPU %.3f s (user %.3f, sys %.3f), wall %.3f s, RSS %.1f MB -> %.0fx CPU, %.0fx wall (one core)\n",
-    n, c, u, y, w, r / 1024, s / c, s / w }'
+    n, c, u, y, w, r / 1024, s / c, s / w }' | tee -a "$results"
 done
+# Medians over the runs of the CPU-time and the wall-time factors.
+median() { sort -n | awk '{ v[NR] = $1 } END { print v[int((NR + 1) / 2)] }'; }
+cpu_f=$(sed -E 's/.*-> ([0-9]+)x CPU.*/\1/' "$results" | median)
+wall_f=$(sed -E 's/.*CPU, ([0-9]+)x wall.*/\1/' "$results" | median)
+echo "median of $runs runs: ${cpu_f}x CPU, ${wall_f}x wall (both threads on CPU $cpu)"
