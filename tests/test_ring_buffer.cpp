@@ -144,6 +144,59 @@ TEST(RingBuffer, TooManyPendingGapsDropInsteadOfLosingTrack) {
   EXPECT_EQ(after[0].first, stream);
 }
 
+// Zero-copy writing: write_space() hands out contiguous free slots (never past the storage end or
+// the free space), commit() publishes a prefix, with any pending gap before it; stream indices and
+// contents come out as with write().
+TEST(RingBuffer, WriteSpaceAndCommitKeepOrderAndGaps) {
+  Ring ring(16);
+  std::uint32_t stream = 0;
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> got;
+  for (int round = 0; round < 20; ++round) {
+    if (round % 5 == 4) {  // an upstream gap of 3 items
+      ring.skip(3);
+      stream += 3;
+    }
+    const std::span<std::uint32_t> space = ring.write_space(7);
+    ASSERT_LE(space.size(), 7u);
+    ASSERT_GT(space.size(), 0u);  // drained every round: there is room
+    const std::size_t fill = space.size() > 1 ? space.size() - 1 : 1;  // publish a prefix only
+    for (std::size_t i = 0; i < fill; ++i) space[i] = stream + static_cast<std::uint32_t>(i);
+    ASSERT_EQ(ring.commit(fill), fill);
+    stream += static_cast<std::uint32_t>(fill);
+    for (const auto& item : drain(ring)) got.push_back(item);
+  }
+  ASSERT_EQ(got.size(), stream - 3u * 4u);  // 4 gaps of 3
+  for (const auto& [index, value] : got) EXPECT_EQ(index, value);
+  EXPECT_EQ(ring.overrun_items(), 0u);
+  EXPECT_EQ(ring.skipped_items(), 12u);
+}
+
+TEST(RingBuffer, WriteSpaceIsEmptyWhenFullAndCommitDropsWhenTheGapTableIsFull) {
+  Ring small(8);
+  ASSERT_EQ(small.write(iota_block(0, 8)), 8u);
+  EXPECT_TRUE(small.write_space(1).empty());
+  // kMaxGaps gaps published and not yet reached by the consumer: the next commit after a gap has no
+  // room for its record, so its items are dropped and counted (write()'s rule).
+  Ring ring(1024);
+  std::uint32_t stream = 0;
+  for (std::size_t g = 0; g < Ring::kMaxGaps; ++g) {
+    ring.skip(1);
+    ++stream;
+    const std::span<std::uint32_t> space = ring.write_space(1);
+    ASSERT_EQ(space.size(), 1u);
+    space[0] = stream++;
+    ASSERT_EQ(ring.commit(1), 1u) << "gap " << g;
+  }
+  ring.skip(1);
+  const std::span<std::uint32_t> space = ring.write_space(2);
+  ASSERT_EQ(space.size(), 2u);
+  EXPECT_EQ(ring.commit(2), 0u);
+  EXPECT_EQ(ring.overrun_items(), 2u);
+  const auto got = drain(ring);
+  ASSERT_EQ(got.size(), Ring::kMaxGaps);
+  for (const auto& [index, value] : got) EXPECT_EQ(index, value);
+}
+
 TEST(RingBuffer, HistoryReserveLimitsTheFill) {
   Ring ring(16, 6);
   EXPECT_EQ(ring.usable_items(), 10u);
@@ -239,6 +292,43 @@ TEST(RingBufferThreaded, MillionItemsInOrderWithoutLoss) {
     // Look-back while the producer keeps writing: the reserved history must be intact.
     if (expected >= 64 && ring.copy_lookback(expected - 64, lookback) == LookbackStatus::ok)
       mismatches += (lookback.front() != expected - 64) + (lookback.back() != expected - 1);
+  }
+  producer.join();
+  EXPECT_EQ(mismatches, 0u);
+  EXPECT_EQ(ring.overrun_items(), 0u);
+  EXPECT_EQ(ring.read_items(), kThreadedItems);
+}
+
+// The same with the zero-copy producer path (write_space + commit), the one the daemon's replay uses.
+TEST(RingBufferThreaded, MillionItemsZeroCopyInOrderWithoutLoss) {
+  Ring ring(1024, 64);
+  std::thread producer([&] {
+    std::mt19937 rng(2);
+    std::uniform_int_distribution<std::size_t> block_size(1, 300);
+    std::uint32_t next = 0;
+    while (next < kThreadedItems) {
+      const auto wanted = std::min<std::size_t>(block_size(rng), kThreadedItems - next);
+      const std::span<std::uint32_t> space = ring.write_space(wanted);
+      if (space.empty()) {
+        std::this_thread::yield();
+        continue;
+      }
+      for (std::size_t i = 0; i < space.size(); ++i) space[i] = next + static_cast<std::uint32_t>(i);
+      next += static_cast<std::uint32_t>(ring.commit(space.size()));
+    }
+  });
+  std::uint64_t expected = 0;
+  std::uint64_t mismatches = 0;
+  while (expected < kThreadedItems) {
+    const auto regions = ring.read_regions();
+    if (regions.size() == 0) {
+      std::this_thread::yield();
+      continue;
+    }
+    if (regions.first_stream_index != expected) ++mismatches;
+    for (auto v : regions.first) mismatches += (v != expected++);
+    for (auto v : regions.second) mismatches += (v != expected++);
+    ring.consume(regions.size());
   }
   producer.join();
   EXPECT_EQ(mismatches, 0u);

@@ -126,38 +126,55 @@ class SpscRingBuffer {
   /// Stores as many of `items` as fit (at most usable_items() - fill) and returns how many. The rest is
   /// dropped, counted in overrun_items(), and becomes a gap in the stream index of the next stored item.
   std::size_t write(std::span<const T> items) noexcept {
+    // At most two contiguous pieces (the storage wraps); each is copied into place and published.
+    std::size_t stored = 0;
+    for (int piece = 0; piece < 2 && stored < items.size(); ++piece) {
+      const std::span<T> space = write_space(items.size() - stored);
+      if (space.empty()) break;
+      std::copy_n(items.data() + stored, space.size(), space.data());
+      if (commit(space.size()) == 0) {  // gap table full: commit dropped and counted these; the rest too
+        drop(items.size() - stored - space.size());
+        return stored;
+      }
+      stored += space.size();
+    }
+    drop(items.size() - stored);
+    return stored;
+  }
+
+  /// Zero-copy writing: the free slots at the write position, contiguous (up to where the storage
+  /// wraps), at most `wanted`; empty when the ring is full. The producer fills a prefix of them and
+  /// publishes it with commit(). Nothing is visible to the consumer before commit().
+  std::span<T> write_space(std::size_t wanted) noexcept {
+    const std::uint64_t w = producer_.write_index;
+    const std::size_t start = static_cast<std::size_t>(w & mask_);
+    const std::size_t n = std::min({wanted, free_items(w, wanted), capacity_ - start});
+    return {storage_.get() + start, n};
+  }
+
+  /// Publishes the first n items of the last write_space() (n <= its size), with any pending gap
+  /// before them. Returns n, or 0 when the gap table is full: then the n items are dropped and
+  /// counted like an overrun (write()'s rule), and the consumer sees them as part of the gap.
+  std::size_t commit(std::size_t n) noexcept {
+    if (n == 0) return 0;
     auto& p = producer_;
     const std::uint64_t w = p.write_index;
-    std::size_t n = std::min(items.size(), free_items(w, items.size()));
-    if (n > 0 && p.pending_gap_items > 0) {
+    if (p.pending_gap_items > 0) {
       // Publish the gap before the items that follow it; the release store of the write index below
       // makes the record visible to the consumer no later than those items.
       if (gap_write_.value.load(std::memory_order_relaxed) - gap_read_.value.load(std::memory_order_acquire) >=
           kMaxGaps) {
-        n = 0;  // gap table full: keep dropping until the consumer has passed some gaps
-      } else {
-        const std::uint64_t g = gap_write_.value.load(std::memory_order_relaxed);
-        gaps_[g & (kMaxGaps - 1)] = Gap{w, p.pending_gap_items};
-        gap_write_.value.store(g + 1, std::memory_order_release);
-        p.published_gap_items += p.pending_gap_items;
-        p.pending_gap_items = 0;
+        drop(n);  // gap table full: keep dropping until the consumer has passed some gaps
+        return 0;
       }
+      const std::uint64_t g = gap_write_.value.load(std::memory_order_relaxed);
+      gaps_[g & (kMaxGaps - 1)] = Gap{w, p.pending_gap_items};
+      gap_write_.value.store(g + 1, std::memory_order_release);
+      p.published_gap_items += p.pending_gap_items;
+      p.pending_gap_items = 0;
     }
-    if (n > 0) {
-      const std::size_t start = static_cast<std::size_t>(w & mask_);
-      const std::size_t first_part = std::min(n, capacity_ - start);
-      std::copy_n(items.data(), first_part, storage_.get() + start);
-      std::copy_n(items.data() + first_part, n - first_part, storage_.get());
-      p.write_index = w + n;
-      write_.value.store(w + n, std::memory_order_release);
-    }
-    const std::size_t dropped = items.size() - n;
-    if (dropped > 0) {
-      p.pending_gap_items += dropped;
-      // Only the producer writes this counter, so load + store is not a lost update.
-      overrun_items_.value.store(overrun_items_.value.load(std::memory_order_relaxed) + dropped,
-                                 std::memory_order_relaxed);
-    }
+    p.write_index = w + n;
+    write_.value.store(w + n, std::memory_order_release);
     return n;
   }
 
@@ -272,6 +289,15 @@ class SpscRingBuffer {
     std::uint64_t gap_read = 0;      ///< private copy of gap_read_
     std::uint64_t run_start_stream_index = 0;  ///< first stream index of the current gap-free run
   };
+
+  /// Items lost at the producer (ring full, gap table full): counted, and a gap before the next stored item.
+  void drop(std::size_t dropped) noexcept {
+    if (dropped == 0) return;
+    producer_.pending_gap_items += dropped;
+    // Only the producer writes this counter, so load + store is not a lost update.
+    overrun_items_.value.store(overrun_items_.value.load(std::memory_order_relaxed) + dropped,
+                               std::memory_order_relaxed);
+  }
 
   /// Free slots for the producer given its write index; reloads the consumer's read index only when the
   /// cached value does not leave room for `wanted` items (saves a cache-line transfer on most writes).
