@@ -3,7 +3,8 @@
 // guaranteed look-back window for pre-trigger capture.
 //
 // CONTRACT
-//   * Exactly one producer thread calls the producer methods (write, skip) and exactly one consumer
+//   * Exactly one producer thread calls the producer methods (write, write_space + commit, skip,
+//     writable_items) and exactly one consumer
 //     thread calls the consumer methods (read_regions, consume, read, copy_lookback, read_stream_index).
 //     The observer methods (capacity, *_items, fill_items) may be called from any thread.
 //   * Nothing allocates, blocks, locks or throws after construction: the storage is allocated once in
