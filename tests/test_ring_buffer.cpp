@@ -252,6 +252,29 @@ constexpr std::uint32_t kThreadedItems = 1u << 20;  // >= 10^6, the issue's requ
 
 /// Lossless: the producer retries the unwritten remainder, so the consumer must see 0, 1, 2, ... with
 /// nothing missing, duplicated or reordered, and the stream index must equal the value.
+/// Consumer of the threaded lossless tests: reads kThreadedItems items whose values are their stream
+/// indices and counts every item or region out of place; meanwhile checks the look-back window (the
+/// reserved history must stay intact while the producer keeps writing).
+std::uint64_t consume_in_order(Ring& ring) {
+  std::uint64_t expected = 0;
+  std::uint64_t mismatches = 0;
+  std::vector<std::uint32_t> lookback(64);
+  while (expected < kThreadedItems) {
+    const auto regions = ring.read_regions();
+    if (regions.size() == 0) {
+      std::this_thread::yield();
+      continue;
+    }
+    if (regions.first_stream_index != expected) ++mismatches;
+    for (auto v : regions.first) mismatches += (v != expected++);
+    for (auto v : regions.second) mismatches += (v != expected++);
+    ring.consume(regions.size());
+    if (expected >= 64 && ring.copy_lookback(expected - 64, lookback) == LookbackStatus::ok)
+      mismatches += (lookback.front() != expected - 64) + (lookback.back() != expected - 1);
+  }
+  return mismatches;
+}
+
 TEST(RingBufferThreaded, MillionItemsInOrderWithoutLoss) {
   Ring ring(1024, 64);
   std::thread producer([&] {
@@ -276,23 +299,7 @@ TEST(RingBufferThreaded, MillionItemsInOrderWithoutLoss) {
       next += static_cast<std::uint32_t>(n);
     }
   });
-  std::uint64_t expected = 0;
-  std::uint64_t mismatches = 0;
-  std::vector<std::uint32_t> lookback(64);
-  while (expected < kThreadedItems) {
-    const auto regions = ring.read_regions();
-    if (regions.size() == 0) {
-      std::this_thread::yield();
-      continue;
-    }
-    if (regions.first_stream_index != expected) ++mismatches;
-    for (auto v : regions.first) mismatches += (v != expected++);
-    for (auto v : regions.second) mismatches += (v != expected++);
-    ring.consume(regions.size());
-    // Look-back while the producer keeps writing: the reserved history must be intact.
-    if (expected >= 64 && ring.copy_lookback(expected - 64, lookback) == LookbackStatus::ok)
-      mismatches += (lookback.front() != expected - 64) + (lookback.back() != expected - 1);
-  }
+  const std::uint64_t mismatches = consume_in_order(ring);
   producer.join();
   EXPECT_EQ(mismatches, 0u);
   EXPECT_EQ(ring.overrun_items(), 0u);
@@ -317,19 +324,7 @@ TEST(RingBufferThreaded, MillionItemsZeroCopyInOrderWithoutLoss) {
       next += static_cast<std::uint32_t>(ring.commit(space.size()));
     }
   });
-  std::uint64_t expected = 0;
-  std::uint64_t mismatches = 0;
-  while (expected < kThreadedItems) {
-    const auto regions = ring.read_regions();
-    if (regions.size() == 0) {
-      std::this_thread::yield();
-      continue;
-    }
-    if (regions.first_stream_index != expected) ++mismatches;
-    for (auto v : regions.first) mismatches += (v != expected++);
-    for (auto v : regions.second) mismatches += (v != expected++);
-    ring.consume(regions.size());
-  }
+  const std::uint64_t mismatches = consume_in_order(ring);
   producer.join();
   EXPECT_EQ(mismatches, 0u);
   EXPECT_EQ(ring.overrun_items(), 0u);
