@@ -2,12 +2,13 @@
 
 #include <cmath>
 #include <sstream>
-#include <utility>
 
 namespace ridgewatch::drivers {
 
 std::size_t SampleSource::read_float(std::span<float> out) {
-  if (!float_pending_error_.empty()) throw InputError(std::exchange(float_pending_error_, {}));
+  // An out-of-range sample ends the stream: the error is reported on every later call (the samples
+  // after it were consumed from read() and are not delivered; a silent hole is never made).
+  if (!float_pending_error_.empty()) throw InputError(float_pending_error_);
   // One read() per call, as large as the caller's span (the scratch grows to the largest block once):
   // a second read() could throw after samples of the first were converted, and those would be lost.
   if (float_scratch_.size() < out.size()) float_scratch_.resize(out.size());
@@ -21,8 +22,8 @@ std::size_t SampleSource::read_float(std::span<float> out) {
     std::ostringstream msg;
     msg << info().name << ": sample " << index << " (" << float_scratch_[i]
         << ") is beyond the single-precision range (|x| > 3.4e38)";
-    if (i == 0) throw InputError(msg.str());
     float_pending_error_ = msg.str();
+    if (i == 0) throw InputError(float_pending_error_);
     float_delivered_ += i;
     return i;
   }

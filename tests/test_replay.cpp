@@ -535,6 +535,8 @@ TEST_F(ReplayTest, ReadFloatRejectsADoubleBeyondTheFloatRange) {
   EXPECT_EQ(source->read_float(buf), 2000U);
   EXPECT_EQ(source->read_float(buf), 100U);
   expect_input_error([&] { source->read_float(buf); }, {file, "sample 2100", "single-precision range"});
+  // The stream ends there: later calls report the same error instead of going on after a hole.
+  expect_input_error([&] { source->read_float(buf); }, {file, "sample 2100", "single-precision range"});
 }
 
 /// Overwrites the sample-rate field (bytes 24..27, little endian) of a canonical 44-byte-header WAV.

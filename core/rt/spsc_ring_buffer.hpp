@@ -4,8 +4,8 @@
 //
 // CONTRACT
 //   * Exactly one producer thread calls the producer methods (write, write_space + commit, skip,
-//     writable_items) and exactly one consumer
-//     thread calls the consumer methods (read_regions, consume, read, copy_lookback, read_stream_index).
+//     writable_items, write_stream_index) and exactly one consumer thread calls the consumer methods
+//     (read_regions, consume, read, copy_lookback, read_stream_index).
 //     The observer methods (capacity, *_items, fill_items) may be called from any thread.
 //   * Nothing allocates, blocks, locks or throws after construction: the storage is allocated once in
 //     the constructor (which throws std::invalid_argument on bad sizes). All methods except the
@@ -19,7 +19,10 @@
 //   * stream index: the absolute sample index of an item in the source stream. stream index = buffer
 //     index + all items lost before it. Items are lost in two ways: an overrun (write() called while the
 //     buffer is full: the write is truncated, the rest is dropped and counted in overrun_items()), or an
-//     upstream gap the producer declares with skip(n) (an ALSA xrun, a device reconnect). Both make a
+//     upstream gap the producer declares with skip(n) (an ALSA xrun, a device reconnect). The zero-copy
+//     path never drops by itself: write_space() hands out free slots only, and commit() drops (and
+//     counts as overrun) only when the gap table is full (below); a zero-copy producer that discards
+//     data declares it with skip(). Both make a
 //     jump in the stream index of the next stored item, which the consumer sees as a forward jump in
 //     ReadRegions::first_stream_index — exactly what pipeline::StreamProcessor::process() expects.
 //     A gap is published together with the first item stored after it, so a trailing gap (nothing
@@ -45,6 +48,7 @@
 #include <algorithm>
 #include <array>
 #include <atomic>
+#include <cassert>
 #include <cstddef>
 #include <cstdint>
 #include <memory>
@@ -150,15 +154,20 @@ class SpscRingBuffer {
     const std::uint64_t w = producer_.write_index;
     const std::size_t start = static_cast<std::size_t>(w & mask_);
     const std::size_t n = std::min({wanted, free_items(w, wanted), capacity_ - start});
+    producer_.last_space_items = n;
     return {storage_.get() + start, n};
   }
 
-  /// Publishes the first n items of the last write_space() (n <= its size), with any pending gap
-  /// before them. Returns n, or 0 when the gap table is full: then the n items are dropped and
-  /// counted like an overrun (write()'s rule), and the consumer sees them as part of the gap.
+  /// Publishes the first n items of the last write_space() (n <= its size; larger n is clamped to it,
+  /// and asserted in debug builds), with any pending gap before them. Returns n, or 0 when the gap
+  /// table is full (or n == 0): then the n items are dropped and counted like an overrun (write()'s
+  /// rule), and the consumer sees them as part of the gap.
   std::size_t commit(std::size_t n) noexcept {
-    if (n == 0) return 0;
     auto& p = producer_;
+    assert(n <= p.last_space_items);
+    n = std::min(n, p.last_space_items);
+    p.last_space_items = 0;
+    if (n == 0) return 0;
     const std::uint64_t w = p.write_index;
     if (p.pending_gap_items > 0) {
       // Publish the gap before the items that follow it; the release store of the write index below
@@ -282,6 +291,7 @@ class SpscRingBuffer {
     std::uint64_t cached_read_index = 0;  ///< last read_ seen; refreshed only when space runs out
     std::uint64_t pending_gap_items = 0;  ///< lost items not yet published as a gap
     std::uint64_t published_gap_items = 0;  ///< lost items already published as gaps
+    std::size_t last_space_items = 0;     ///< size of the last write_space(): commit() may publish up to it
   };
 
   struct alignas(kCacheLineBytes) ConsumerState {
