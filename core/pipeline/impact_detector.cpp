@@ -58,11 +58,13 @@ inline float lanes_sum(F4 s) { return (s[0] + s[1]) + (s[2] + s[3]); }
 
 // {lanes_sum(a[0]), ..., lanes_sum(a[3])}, the same additions in the same order: pairs of lanes
 // summed in one add for two vectors at a time, then the pairs of pairs.
+// __builtin_shufflevector (constant lane indices) is understood by both GCC (>= 12) and Clang; the
+// libFuzzer build uses Clang.
 inline F4 lanes_sum4(const F4 (&a)[4]) {
-  const I4 even = {0, 2, 4, 6}, odd = {1, 3, 5, 7};
-  const F4 p = __builtin_shuffle(a[0], a[1], even) + __builtin_shuffle(a[0], a[1], odd);  // a0 01 23, a1 01 23
-  const F4 q = __builtin_shuffle(a[2], a[3], even) + __builtin_shuffle(a[2], a[3], odd);
-  return __builtin_shuffle(p, q, even) + __builtin_shuffle(p, q, odd);
+  const F4 p = __builtin_shufflevector(a[0], a[1], 0, 2, 4, 6) +
+               __builtin_shufflevector(a[0], a[1], 1, 3, 5, 7);  // a0 01 23, a1 01 23
+  const F4 q = __builtin_shufflevector(a[2], a[3], 0, 2, 4, 6) + __builtin_shufflevector(a[2], a[3], 1, 3, 5, 7);
+  return __builtin_shufflevector(p, q, 0, 2, 4, 6) + __builtin_shufflevector(p, q, 1, 3, 5, 7);
 }
 
 // Dot products of the samples with the real and imaginary FIR taps (float, see the header: stage 2a),
