@@ -669,6 +669,18 @@ TEST(MorletCwtHalfRate, TransformOfCopyEqualsFullRateReference) {
   }
 }
 
+/// Band-limited transform of the half-rate (1,2,1)/4 copy of an n_x-sample record at fs_x.
+MorletCwtConfig half_rate_config(double fs_x, double eta0, const std::vector<double>& freqs, std::size_t n_x) {
+  MorletCwtConfig cfg;
+  cfg.sample_rate_hz = fs_x / 2;
+  cfg.eta0 = eta0;
+  cfg.frequencies_hz = freqs;
+  cfg.max_samples = n_x / 2;
+  cfg.band_limited = true;
+  cfg.half_rate_121_input = true;
+  return cfg;
+}
+
 // noise_gain of a half-rate transform refers to white noise of the full-rate x. Independent reference:
 // the impulse response of the whole chain (decimation, transform) at one interior column, g_j = W_c
 // for x = unit impulse at j; E|W_c|^2 = sigma^2 sum_j |g_j|^2 for white x. Both sides are exact up to
@@ -687,13 +699,7 @@ TEST(MorletCwtHalfRate, NoiseGainEqualsImpulseResponseEnergy) {
   const double eta0 = 7.0;
   for (const Case& cs : cases) {
     const std::size_t n_x = 1000 * 2;  // 1000 half-rate samples: > 2 x 5.3 kernel sds at the lowest row
-    MorletCwtConfig cfg;
-    cfg.sample_rate_hz = cs.fs_x / 2;
-    cfg.eta0 = eta0;
-    cfg.frequencies_hz = cs.freqs;
-    cfg.max_samples = n_x / 2;
-    cfg.band_limited = true;
-    cfg.half_rate_121_input = true;
+    const MorletCwtConfig cfg = half_rate_config(cs.fs_x, eta0, cs.freqs, n_x);
     MorletCwt<double> cwt(cfg);
     const std::size_t c_mid = n_x / 2 / 2 / cwt.decimation();  // column at the record's centre
     std::vector<double> energy(cs.freqs.size(), 0.0);
@@ -732,13 +738,7 @@ TEST(MorletCwtHalfRate, WhiteNoiseVarianceMatchesNoiseGain) {
                                    {8000.0, {700.0, 1000.0}}};
   for (const Case& cs : cases) {
     const std::size_t n_x = std::size_t{1} << 17;
-    MorletCwtConfig cfg;
-    cfg.sample_rate_hz = cs.fs_x / 2;
-    cfg.eta0 = eta0;
-    cfg.frequencies_hz = cs.freqs;
-    cfg.max_samples = n_x / 2;
-    cfg.band_limited = true;
-    cfg.half_rate_121_input = true;
+    const MorletCwtConfig cfg = half_rate_config(cs.fs_x, eta0, cs.freqs, n_x);
     MorletCwt<float> cwt(cfg);
     std::mt19937_64 rng(77);
     std::normal_distribution<double> normal(0.0, noise_sd);
