@@ -65,6 +65,12 @@ void put_key(std::string& out, std::string_view key) {
 std::string event_json(const pipeline::ImpactEvent& e, std::string_view source, std::string_view wall_time) {
   std::string out;
   out.reserve(512 + source.size());
+  append_event_json(out, e, source, wall_time);
+  return out;
+}
+
+void append_event_json(std::string& out, const pipeline::ImpactEvent& e, std::string_view source,
+                       std::string_view wall_time) {
   out += '{';
   put_key(out, "t_s");
   put_number(out, e.t_s);
@@ -117,7 +123,6 @@ std::string event_json(const pipeline::ImpactEvent& e, std::string_view source, 
   put_key(out, "transition");
   out += e.alarm.transition() ? "true" : "false";
   out += "}}";
-  return out;
 }
 
 }  // namespace ridgewatch::cli

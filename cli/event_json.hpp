@@ -16,5 +16,8 @@ namespace ridgewatch::cli {
 /// wall_time_iso8601: wall-clock time of the impact (live capture), omitted when empty.
 std::string event_json(const pipeline::ImpactEvent& e, std::string_view source,
                        std::string_view wall_time_iso8601 = {});
+/// The same object appended to `out` (the daemon collects a block of lines for one write).
+void append_event_json(std::string& out, const pipeline::ImpactEvent& e, std::string_view source,
+                       std::string_view wall_time_iso8601 = {});
 
 }  // namespace ridgewatch::cli

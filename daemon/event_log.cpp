@@ -4,6 +4,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cmath>
 #include <cstring>
@@ -51,28 +52,50 @@ bool LineFile::open() {
 }
 
 bool LineFile::write_line(const std::string& text) {
-  if (fd_ < 0 && !open()) {
-    ++failed_;
-    return false;
-  }
   const std::string line = text + "\n";
-  const ssize_t n = ::write(fd_, line.data(), line.size());
-  if (n == static_cast<ssize_t>(line.size())) {
-    ++written_;
-    fault_ = false;
-    return true;
+  return write_lines(line, 1) == 0;
+}
+
+std::size_t LineFile::write_lines(std::string_view block, std::size_t lines) {
+  if (lines == 0) return 0;
+  if (fd_ < 0 && !open()) {
+    failed_ += lines;
+    return lines;
   }
-  // A short write leaves a partial line; cut it back so the file stays valid JSON Lines.
-  if (n > 0 && owns_fd_) {
-    const off_t end = ::lseek(fd_, 0, SEEK_END);
-    if (end >= n && ::ftruncate(fd_, end - n) != 0) {
-      last_error_ = path_ + ": could not remove a partial line: " + std::strerror(errno);
+  std::size_t done = 0;  // bytes written
+  int error = 0;         // errno of the failed write(2), 0 for a write that took nothing
+  while (done < block.size()) {
+    const ssize_t n = ::write(fd_, block.data() + done, block.size() - done);
+    if (n > 0) {
+      done += static_cast<std::size_t>(n);
+    } else if (n < 0 && errno == EINTR) {
+      continue;
+    } else {
+      error = n < 0 ? errno : 0;
+      break;
     }
   }
-  ++failed_;
+  if (done == block.size()) {
+    written_ += lines;
+    fault_ = false;
+    return 0;
+  }
+  // The whole lines written are a prefix of the block; a partial line after them is cut back so the
+  // file stays valid JSON Lines.
+  const std::string_view out = block.substr(0, done);
+  const std::size_t whole_bytes = out.rfind('\n') == std::string_view::npos ? 0 : out.rfind('\n') + 1;
+  const auto whole = static_cast<std::size_t>(std::count(out.begin(), out.begin() + static_cast<std::ptrdiff_t>(whole_bytes), '\n'));
+  const std::size_t partial = done - whole_bytes;
+  last_error_ = path_ + ": write failed: " + (error != 0 ? std::strerror(error) : "short write (disk full?)");
+  if (partial > 0 && owns_fd_) {
+    const off_t end = ::lseek(fd_, 0, SEEK_END);
+    const bool cut = end >= static_cast<off_t>(partial) && ::ftruncate(fd_, end - static_cast<off_t>(partial)) == 0;
+    if (!cut) last_error_ += "; could not remove the partial line (" + std::string(end < 0 ? std::strerror(errno) : "truncate failed") + ")";
+  }
+  written_ += whole;
+  failed_ += lines - whole;
   fault_ = true;
-  last_error_ = path_ + ": write failed: " + (n < 0 ? std::strerror(errno) : "short write (disk full?)");
-  return false;
+  return lines - whole;
 }
 
 void LineFile::reopen() {

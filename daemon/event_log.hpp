@@ -1,13 +1,15 @@
 // Event outputs of the daemon: the JSON Lines log (the contract in the README), an optional CSV log,
 // and capture-on-trigger files. Writes never throw: a line that cannot be written (disk full,
 // permission lost) is counted, the log enters a fault state, and writing resumes by itself when the
-// file accepts data again. Each line goes out in one write(2) to an O_APPEND descriptor, so a line is
-// either complete or absent, also when the process is killed.
+// file accepts data again. Lines go out in blocks, one write(2) per block to an O_APPEND descriptor
+// (the daemon writes the events of one processing step as one block); a line the disk cuts short is
+// removed again, so the file holds whole lines only, also when the process is killed.
 #pragma once
 
 #include <cstdint>
 #include <span>
 #include <string>
+#include <string_view>
 
 #include "core/pipeline/impact_event.hpp"
 
@@ -23,6 +25,11 @@ class LineFile {
 
   /// Appends text + '\n'. Returns false (and counts) when it could not be written completely.
   bool write_line(const std::string& text);
+  /// Appends `lines` complete lines (`block` is their text, each line ending in '\n'), in one
+  /// write(2) unless the file takes less (then the rest follows). Returns how many of the lines could
+  /// not be written (0: all of them were); those are the last ones of the block, and a line cut short
+  /// is truncated away again.
+  std::size_t write_lines(std::string_view block, std::size_t lines);
   /// Closes and opens the path again (log rotation, SIGHUP).
   void reopen();
   /// fsync(2): called before exit so written events survive a power cut.

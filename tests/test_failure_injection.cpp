@@ -24,6 +24,7 @@
 
 #include "cli_runner.hpp"
 #include "daemon/daemon.hpp"
+#include "daemon/event_log.hpp"
 #include "drivers/alsa_source.hpp"
 #include "drivers/replay_file.hpp"
 #include "process_runner.hpp"
@@ -108,6 +109,57 @@ TEST_F(FailureInjection, EventLogOnAFullDiskIsCountedAndProcessingContinues) {
   EXPECT_EQ(impacts, reference().size()) << err;
   EXPECT_EQ(failures, reference().size()) << err;  // every event counted as not written
   EXPECT_EQ(count_lines(dir_ / "ev.csv"), reference().size() + 1);
+}
+
+// A block of lines (the daemon writes each processing step's events as one block) on a disk that
+// has room for part of it: tmpfs takes one free page (4096 bytes) of the 4500-byte block, the write
+// of the rest fails with ENOSPC; the two whole lines stay, the cut third line is truncated away and
+// counted as lost. With space back, the next block is written whole after them.
+TEST_F(FailureInjection, LineBlockCutShortByAFullDiskKeepsWholeLinesOnly) {
+  const fs::path mnt = dir_ / "mnt";
+  fs::create_directories(mnt);
+  if (::mount("tmpfs", mnt.c_str(), "tmpfs", 0, "size=64k,mode=0755") != 0)
+    GTEST_SKIP() << "cannot mount a tmpfs here (" << std::strerror(errno) << "); needs root with CAP_SYS_ADMIN";
+  mounted_ = mnt;
+  const fs::path filler = mnt / "filler";
+  {
+    const int fd = ::open(filler.c_str(), O_WRONLY | O_CREAT, 0644);
+    ASSERT_GE(fd, 0);
+    const std::string chunk(4096, 'x');
+    while (::write(fd, chunk.data(), chunk.size()) > 0) {
+    }
+    const off_t size = ::lseek(fd, 0, SEEK_END);
+    ASSERT_GE(size, 4096);
+    ASSERT_EQ(size % 4096, 0);
+    ASSERT_EQ(::ftruncate(fd, size - 4096), 0);  // exactly one page free
+    ::close(fd);
+  }
+  const fs::path path = mnt / "lines.txt";
+  ridgewatch::daemon::LineFile file(path.string());
+  const std::string a(1499, 'a'), b(1499, 'b'), c(1499, 'c');
+  EXPECT_EQ(file.write_lines(a + "\n" + b + "\n" + c + "\n", 3), 1u);
+  EXPECT_TRUE(file.fault());
+  EXPECT_NE(file.last_error().find("No space left on device"), std::string::npos) << file.last_error();
+  EXPECT_EQ(file.lines_written(), 2u);
+  EXPECT_EQ(file.lines_failed(), 1u);
+  EXPECT_EQ(slurp(path), a + "\n" + b + "\n");
+  fs::remove(filler);
+  EXPECT_EQ(file.write_lines("d\ne\n", 2), 0u);
+  EXPECT_FALSE(file.fault());
+  EXPECT_EQ(file.lines_written(), 4u);
+  EXPECT_EQ(slurp(path), a + "\n" + b + "\n" + "d\ne\n");
+}
+
+// Nothing fits (ENOSPC at once): every line of the block is counted, nothing is written.
+TEST(LineFile, BlockOnAFullDeviceCountsEveryLine) {
+  ridgewatch::daemon::LineFile file("/dev/full");
+  EXPECT_EQ(file.write_lines("one\ntwo\nthree\n", 3), 3u);
+  EXPECT_EQ(file.lines_failed(), 3u);
+  EXPECT_EQ(file.lines_written(), 0u);
+  EXPECT_NE(file.last_error().find("/dev/full: write failed: No space left on device"), std::string::npos)
+      << file.last_error();
+  EXPECT_FALSE(file.write_line("four"));
+  EXPECT_EQ(file.lines_failed(), 4u);
 }
 
 // A disk that fills up and gets space back: a 64 KiB tmpfs filled to the last byte. Writes fail
