@@ -583,14 +583,15 @@ TEST(MorletCwtHalfRate, DecimateMatchesDefinition) {
   }
 }
 
-// The float-input overload (vector lanes, a separate float peak pass) gives exactly what the double
-// overload gives for the same values: both widen each sample to double and do the same operations,
-// and max |x| of floats is exact. Lengths cover the vector loop's remainders and the edges; values
-// include negative peaks and a sign-bit-only zero.
+// The float-input overload (four outputs per step in vector lanes, the peak in eight lanes of the same
+// loads) gives exactly what the double overload gives for the same values: both widen each sample to
+// double and do the same operations, and max |x| of floats is exact. Lengths cover the vector loop's
+// remainders (n / 2 - 1 interior outputs: 0-3 left over) and the edges; values include negative
+// peaks and a sign-bit-only zero, and the peak visits every lane, the edges and the remainder.
 TEST(MorletCwtHalfRate, DecimateFloatInputEqualsDoubleInput) {
   std::mt19937_64 rng(12);
   std::normal_distribution<float> normal(0.0f, 1.0f);
-  for (std::size_t n : {1u, 2u, 3u, 5u, 8u, 9u, 10u, 11u, 12u, 13u, 64u, 1893u, 1894u}) {
+  for (std::size_t n : {1u, 2u, 3u, 5u, 8u, 9u, 10u, 11u, 12u, 13u, 14u, 15u, 16u, 17u, 18u, 64u, 1893u, 1894u}) {
     std::vector<float> xf(n);
     for (float& v : xf) v = normal(rng);
     if (n > 4) {
@@ -614,6 +615,17 @@ TEST(MorletCwtHalfRate, DecimateFloatInputEqualsDoubleInput) {
     std::vector<double> only(m_out, NAN);  // without the float copy
     EXPECT_EQ(decimate_half_121(std::span<const float>(xf), only, {}), pd);
     EXPECT_EQ(only, yd);
+    // The peak at each position (for long windows: the first and last 24 samples and 16 in the middle).
+    for (std::size_t i = 0; i < n; ++i) {
+      if (n > 64 && i >= 24 && i + 24 < n && (i < n / 2 || i >= n / 2 + 16)) continue;
+      std::vector<float> xp = xf;
+      xp[i] = i % 2 == 0 ? 7.0f : -7.0f;
+      const std::vector<double> xpd(xp.begin(), xp.end());
+      EXPECT_EQ(decimate_half_121(std::span<const float>(xp), yf64, yf32), 7.0) << "n=" << n << " i=" << i;
+      EXPECT_EQ(decimate_half_121(std::span<const double>(xpd), yd, yd32), 7.0) << "n=" << n << " i=" << i;
+      EXPECT_EQ(yf64, yd) << "n=" << n << " i=" << i;
+      EXPECT_EQ(yf32, yd32) << "n=" << n << " i=" << i;
+    }
   }
 }
 

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <numbers>
 
 #include "core/dsp/select.hpp"
@@ -26,6 +27,32 @@ ImpactStatus from_estimate(dsp::EstimateStatus s) {
     case dsp::EstimateStatus::inconsistent: return ImpactStatus::inconsistent;
   }
   return ImpactStatus::fit_failed;
+}
+
+// p[c] -= med for c < cols, returning the largest result over [c_begin, c_end) (c_begin < c_end):
+// two independent pairs of SSE2 lanes for the maxima (the values are NaN-free).
+using Pair = double __attribute__((vector_size(2 * sizeof(double))));
+using PairU = double __attribute__((vector_size(2 * sizeof(double)), aligned(alignof(double))));
+double subtract_and_max(double* p, std::size_t cols, double med, std::size_t c_begin, std::size_t c_end) {
+  std::size_t c = 0;
+  for (; c < c_begin; ++c) p[c] -= med;
+  const Pair m2 = {med, med};
+  const double inf = std::numeric_limits<double>::infinity();
+  Pair mx0 = {-inf, -inf}, mx1 = mx0;
+  for (; c + 4 <= c_end; c += 4) {
+    const Pair a = *reinterpret_cast<const PairU*>(p + c) - m2, b = *reinterpret_cast<const PairU*>(p + c + 2) - m2;
+    *reinterpret_cast<PairU*>(p + c) = a;
+    *reinterpret_cast<PairU*>(p + c + 2) = b;
+    mx0 = a > mx0 ? a : mx0;
+    mx1 = b > mx1 ? b : mx1;
+  }
+  double mx = std::max(std::max(mx0[0], mx0[1]), std::max(mx1[0], mx1[1]));
+  for (; c < c_end; ++c) {
+    p[c] -= med;
+    mx = std::max(mx, p[c]);
+  }
+  for (; c < cols; ++c) p[c] -= med;
+  return mx;
 }
 
 // Highest frequency the analysis reads: the top CWT row's kept band (band-limited truncation width
@@ -105,8 +132,7 @@ ImpactAnalyzer::ImpactAnalyzer(const ImpactAnalyzerConfig& cfg, double fs) {
   grid_.assign(rows * max_cols, {});
   if (in_dec_ == 2) xf_.assign(max_in, 0.0f);
   xd_.assign(max_in, 0.0);
-  scratch_.assign(max_cols, 0.0);
-  scratch2_.assign(max_cols, 0.0);
+  scratch_.assign(2 * max_cols, 0.0);
   row_median_.assign(rows, 0.0);
   envelope_ws_.reserve(max_cols, max_cols);
   ml_result_.modes.reserve(1);
@@ -224,32 +250,31 @@ ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
   // column; the free response decays within the window. Subtracting each row's median power over
   // the window keeps the impact's ridge and removes the lines' (a line moving through the band
   // with the speed, e.g. 550 Hz + 20 %, would otherwise out-shine a weak impact).
-  // One pass per row: |W|^2 (into the power grid and the median's scratch), the median
-  // (dsp::select_kth: the same value as nth_element without its unpredictable branches), then the
-  // subtraction together with the row's first maximum after the onset. The ridge starts at the
-  // largest value after the onset, the first one in row-major order on ties (rows compared with >).
-  std::size_t r0 = 0, c0 = onset_col;
+  // One pass per row: |W|^2 into the power grid, the median (dsp::select_kth_nonnegative: the value
+  // nth_element gives, mostly without a partition pass), then the subtraction together with the row's
+  // maximum after the onset. The ridge starts at the largest value after the onset, the first one in
+  // row-major order on ties: the first row whose maximum exceeds the earlier rows' (>), at its first
+  // column holding that maximum, found once after the rows (a first-maximum scan per row branched on
+  // every new maximum). Measured on rw60.wav's rows (14 x 64 per impact): 2.4 -> 1.35 us per impact.
+  std::size_t r0 = 0;
   double peak_power = 0.0;
   for (std::size_t r = 0; r < rows; ++r) {
     const std::complex<float>* g = grid_.data() + r * cols;
     double* p = power_.data() + r * cols;
-    double* s = scratch_.data();
     for (std::size_t c = 0; c < cols; ++c) {
       const double re = g[c].real(), im = g[c].imag();
-      s[c] = p[c] = re * re + im * im;
+      p[c] = re * re + im * im;
     }
-    const double med = dsp::select_kth(s, scratch2_.data(), cols, cols / 2);
+    const double med = dsp::select_kth_nonnegative(p, scratch_.data(), cols, cols / 2);
     row_median_[r] = med;
-    for (std::size_t c = 0; c < cols; ++c) p[c] -= med;
-    std::size_t c_max = onset_col;
-    for (std::size_t c = onset_col + 1; c < last_col; ++c)
-      if (p[c] > p[c_max]) c_max = c;
-    if (r == 0 || p[c_max] > peak_power) {
-      peak_power = p[c_max];
+    const double row_max = subtract_and_max(p, cols, med, onset_col, last_col);
+    if (r == 0 || row_max > peak_power) {
+      peak_power = row_max;
       r0 = r;
-      c0 = c_max;
     }
   }
+  std::size_t c0 = onset_col;
+  while (c0 + 1 < last_col && power_[r0 * cols + c0] != peak_power) ++c0;
   auto pw = [&](std::size_t r, std::size_t c) { return power_[r * cols + c]; };
 
   bool ridge_lost = r0 == 0 || r0 + 1 == rows;

@@ -141,7 +141,7 @@ class ImpactAnalyzer {
   std::vector<std::complex<float>> grid_;        // the grid rows (rows x cols)
   std::vector<double> power_;                    // rows x cols |W|^2
   std::vector<std::complex<double>> w_;          // one row
-  std::vector<double> scratch_, scratch2_;       // median of a row (select_kth's two buffers)
+  std::vector<double> scratch_;                  // median of a row (select_kth_nonnegative's scratch)
   std::vector<double> row_median_;               // each row's median |W|^2 over the window
   std::vector<std::size_t> fitter_len_;          // segment lengths of the ML fitters
   std::vector<std::unique_ptr<dsp::SpectralModeFitter>> fitters_;

@@ -104,7 +104,7 @@ struct StreamProcessor::Impl {
 
   std::vector<float> raw;  // raw samples by absolute index & mask
   std::uint64_t mask = 0;
-  std::vector<float> window_buf;  // the window handed to the analyzer (a contiguous copy of the ring)
+  std::vector<float> window_buf;  // a window that wraps around the ring's end, made contiguous
   bool started = false, flushed = false;
   std::uint64_t seg_start = 0, next = 0;
   std::size_t wait_after = 0;    // samples past a window's end before it is final
@@ -212,15 +212,22 @@ struct StreamProcessor::Impl {
       kind = WindowEnd::gap;
     }
     const std::size_t n = static_cast<std::size_t>(end - w0);
-    // At most two contiguous pieces of the ring (a masked index per sample does not vectorise).
+    // The window in place in the ring when it is one contiguous piece there (nothing writes the ring
+    // while analyze() runs); a window that wraps around the ring's end is copied out (two pieces: a
+    // masked index per sample does not vectorise). With the 8192-sample ring at 51.2 kHz about three
+    // windows in four are contiguous (measured on rw60.wav, `ridgewatch analyze`: memmove 2.2-2.7 ->
+    // 1.5-2.4 % of the samples in perf, memcpy 6.7M -> 5.9M instructions in callgrind).
     const auto slot = static_cast<std::size_t>(w0 & mask);
-    const std::size_t first = std::min(n, raw.size() - slot);
-    std::copy(raw.begin() + static_cast<std::ptrdiff_t>(slot), raw.begin() + static_cast<std::ptrdiff_t>(slot + first),
-              window_buf.begin());
-    std::copy(raw.begin(), raw.begin() + static_cast<std::ptrdiff_t>(n - first),
-              window_buf.begin() + static_cast<std::ptrdiff_t>(first));
+    const float* contiguous = raw.data() + slot;
+    if (n > raw.size() - slot) {
+      const std::size_t first = raw.size() - slot;
+      std::copy(raw.begin() + static_cast<std::ptrdiff_t>(slot), raw.end(), window_buf.begin());
+      std::copy(raw.begin(), raw.begin() + static_cast<std::ptrdiff_t>(n - first),
+                window_buf.begin() + static_cast<std::ptrdiff_t>(first));
+      contiguous = window_buf.data();
+    }
     ImpactWindow win;
-    win.samples = std::span<const float>(window_buf.data(), n);
+    win.samples = std::span<const float>(contiguous, n);
     win.onset_offset = static_cast<std::size_t>(o - w0);
     win.end = kind;
     win.noise_var = p.noise_var;
