@@ -28,6 +28,8 @@ events="$tmp/ridgewatch-bench-events.jsonl"
 # The first CPU this shell may run on (its affinity list, e.g. "0,1" or "0-1").
 cpu=$(taskset -pc $$ | sed -E 's/.*: *([0-9]+).*/\1/')
 timing="$tmp/ridgewatch-bench-time.txt"
+cpu_times="$tmp/ridgewatch-bench-cpu.txt"
+TIMEFORMAT='%3U %3S %3R'
 results="$tmp/ridgewatch-bench-results.txt"
 : >"$results"
 # One unreported warm-up run: the recording into the page cache, the binaries and libraries loaded
@@ -35,9 +37,13 @@ results="$tmp/ridgewatch-bench-results.txt"
 taskset -c "$cpu" "$build/daemon/ridgewatchd" --replay "$rec.wav" --speed max --events /dev/null 2>/dev/null
 for ((i = 1; i <= runs; i++)); do
   rm -f "$events"  # ridgewatchd appends to an existing event log
-  /usr/bin/time -o "$timing" -f "%U %S %e %M" taskset -c "$cpu" "$build/daemon/ridgewatchd" --replay "$rec.wav" \
-    --speed max --events "$events" 2>/dev/null
-  read -r user sys wall rss_kb <"$timing"
+  # CPU and wall time in ms from bash's `time` (getrusage of the waited-for children: GNU time prints
+  # only 10 ms steps); it includes GNU time's and taskset's own ~2-3 ms, so the factors err low. GNU
+  # time reports the peak RSS.
+  { time /usr/bin/time -o "$timing" -f "%M" taskset -c "$cpu" "$build/daemon/ridgewatchd" --replay "$rec.wav" \
+    --speed max --events "$events" 2>/dev/null; } 2>"$cpu_times"
+  read -r user sys wall <"$cpu_times"
+  read -r rss_kb <"$timing"
   awk -v s="$seconds" -v u="$user" -v y="$sys" -v w="$wall" -v r="$rss_kb" -v n="$(wc -l <"$events")" 'BEGIN {
     c = u + y; printf "run: %d events, CPU %.3f s (user %.3f, sys %.3f), wall %.3f s, RSS %.1f MB -> %.0fx CPU, %.0fx wall (one core)\n",
     n, c, u, y, w, r / 1024, s / c, s / w }' | tee -a "$results"
