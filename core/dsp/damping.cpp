@@ -15,11 +15,26 @@ constexpr double kZ95 = 1.959963984540054;  // two-sided 95 % normal quantile
 
 double kernel_sd_s(const EnvelopeRow& row) { return row.eta0 / (kTwoPi * row.f_row_hz); }
 
+double debiased_power(double p, double noise) {
+  // E|W|^2 = |W_signal|^2 + noise: subtract the noise, floor at a quarter of the raw power.
+  return std::max(p - noise, 0.25 * p);
+}
+
 // Weighted straight-line fit y = a + b t with a sandwich covariance for errors whose correlation is
 // rho(dt) = exp(-dt^2 / (4 s^2)) and whose variances are 1 / w. Points are taken every `stride`
 // columns; the correlation makes denser sampling add almost nothing. The values and square-root
 // weights are evaluated once per point into the workspace, and rho, which depends only on the lag,
 // once per lag (the pair sum below visits each point ~reach times).
+//
+// The weights are those of both estimators, w = 2 (|W|^2 - noise)_+ / noise: the inverse variance of
+// ln|W| and of arg W, noise / (2 |W|^2). They, the bread sums and the meat depend on the row's samples
+// at the points, the noise, the column grid and the kernel width only; the values come from
+// fill_values(y, power, count), which writes y[i] for the point i from the row (power[i]: its debiased
+// |W|^2). The workspace keeps the last fit's weights, sums and slope uncertainty with those inputs
+// (EnvelopeWorkspace); a fit whose inputs all equal them bit for bit takes them over instead of
+// recomputing them, which gives the same bits. In the analyzer the ridge-LS fit runs on the phase
+// slope's row and window unless f_d moves the row (ridgewatch analyze rw60.wav: it took them over in
+// all 1500 impacts; estimate_ridge_ls 19.9M -> 5.7M instructions, the meat was most of it).
 using Pair = double __attribute__((vector_size(2 * sizeof(double))));
 
 struct LineFit {
@@ -27,36 +42,26 @@ struct LineFit {
   std::size_t points = 0;
 };
 
-template <typename ValueFn, typename WeightFn>
-LineFit weighted_line_fit(std::size_t begin, std::size_t end, std::size_t stride, double dt,
-                          double kernel_sd, ValueFn value, WeightFn weight, EnvelopeWorkspace& ws) {
-  LineFit fit;
-  if (end <= begin) return fit;
-  const std::size_t count = (end - begin + stride - 1) / stride;
-  ws.value.resize(count);
-  ws.root_weight.resize(count);
-  ws.time.resize(count);
-  double s0 = 0, s1 = 0, s2 = 0, sy = 0, sty = 0;
-  const double t_ref = static_cast<double>(begin) * dt;  // centre times for conditioning
-  for (std::size_t i = 0; i < count; ++i) {
-    const std::size_t c = begin + i * stride;
-    const double t = static_cast<double>(c) * dt - t_ref;
-    const double w = weight(c);
-    const double y = value(c);
-    ws.value[i] = y;
-    ws.root_weight[i] = std::sqrt(w);
-    ws.time[i] = t;
-    s0 += w;
-    s1 += w * t;
-    s2 += w * t * t;
-    sy += w * y;
-    sty += w * t * y;
-  }
-  fit.points = count;
-  const double det = s0 * s2 - s1 * s1;
-  if (fit.points < 3 || !(det > 0)) return fit;
-  fit.slope = (s0 * sty - s1 * sy) / det;
-  fit.intercept = (s2 * sy - s1 * sty) / det - fit.slope * t_ref;
+bool same_bits(double a, double b) { return std::memcmp(&a, &b, sizeof a) == 0; }
+
+// Whether the workspace holds the weights and meat of a fit on these points and inputs.
+bool remembered_fit(const EnvelopeRow& row, std::size_t begin, std::size_t count, std::size_t stride,
+                    double noise, double kernel_sd, const EnvelopeWorkspace& ws) {
+  const EnvelopeWorkspace::Remembered& m = ws.remembered;
+  if (!m.valid || m.begin != begin || m.stride != stride || ws.samples.size() != count ||
+      !same_bits(m.time_step_s, row.time_step_s) || !same_bits(m.kernel_sd_s, kernel_sd) ||
+      !same_bits(m.noise_power, noise))
+    return false;
+  const std::complex<double>* w = row.w.data() + begin;
+  for (std::size_t i = 0; i < count; ++i)
+    if (std::memcmp(&w[i * stride], &ws.samples[i], sizeof(std::complex<double>)) != 0) return false;
+  return true;
+}
+
+// Sandwich standard uncertainty of the slope from the weights and times in the workspace (s0, s1 and
+// det = s0 s2 - s1^2 > 0: the bread).
+double sandwich_slope_sd(std::size_t count, std::size_t stride, double dt, double kernel_sd, double s0,
+                         double s1, double det, EnvelopeWorkspace& ws) {
   // Meat of the sandwich: sum_ij x_i x_j^T sqrt(w_i w_j) rho_ij, over pairs within 6 correlation
   // lengths (rho < 1e-15 beyond).
   const double corr_len = 2.0 * kernel_sd;
@@ -86,7 +91,7 @@ LineFit weighted_line_fit(std::size_t begin, std::size_t end, std::size_t stride
   const double* u = ws.root_weight.data();
   const double* tt = ws.time.data();
   const double* rho = ws.correlation.data();
-  ws.value.resize(count);  // the values are no longer needed: v_i = u_i t_i
+  ws.value.resize(count);  // scratch here: the values are filled after the weights
   double* v = ws.value.data();
   for (std::size_t i = 0; i < count; ++i) v[i] = u[i] * tt[i];
   for (std::size_t k = 0; k <= reach; ++k) {
@@ -119,7 +124,77 @@ LineFit weighted_line_fit(std::size_t begin, std::size_t end, std::size_t stride
   // Bread (X^T W X)^-1 = [s2 -s1; -s1 s0] / det; slope variance = row 2 of bread * meat * bread col 2.
   const double b10 = -s1 / det, b11 = s0 / det;
   const double var = b10 * b10 * m00 + 2.0 * b10 * b11 * m01 + b11 * b11 * m11;
-  fit.slope_sd = std::sqrt(std::max(var, 0.0));
+  return std::sqrt(std::max(var, 0.0));
+}
+
+// Weights, times, bread sums and the sandwich standard uncertainty of the slope into ws.remembered.
+void fit_weights(const EnvelopeRow& row, std::size_t begin, std::size_t count, std::size_t stride,
+                 double noise, double kernel_sd, EnvelopeWorkspace& ws) {
+  const double dt = row.time_step_s;
+  EnvelopeWorkspace::Remembered& m = ws.remembered;
+  m.valid = false;
+  ws.samples.resize(count);
+  ws.power.resize(count);
+  ws.weight.resize(count);
+  ws.root_weight.resize(count);
+  ws.time.resize(count);
+  double s0 = 0, s1 = 0, s2 = 0;
+  const double t_ref = static_cast<double>(begin) * dt;  // centre times for conditioning
+  for (std::size_t i = 0; i < count; ++i) {
+    const std::size_t c = begin + i * stride;
+    const double t = static_cast<double>(c) * dt - t_ref;
+    ws.samples[i] = row.w[c];
+    const double p = debiased_power(std::norm(row.w[c]), noise);
+    const double w = 2.0 * p / noise;
+    ws.power[i] = p;
+    ws.weight[i] = w;
+    ws.root_weight[i] = std::sqrt(w);
+    ws.time[i] = t;
+    s0 += w;
+    s1 += w * t;
+    s2 += w * t * t;
+  }
+  m.s0 = s0;
+  m.s1 = s1;
+  m.s2 = s2;
+  m.slope_sd = NAN;
+  const double det = s0 * s2 - s1 * s1;
+  if (count >= 3 && det > 0) m.slope_sd = sandwich_slope_sd(count, stride, dt, kernel_sd, s0, s1, det, ws);
+  m.begin = begin;
+  m.stride = stride;
+  m.time_step_s = dt;
+  m.kernel_sd_s = kernel_sd;
+  m.noise_power = noise;
+  m.valid = true;
+}
+
+template <typename ValueFn>
+LineFit weighted_line_fit(const EnvelopeRow& row, std::size_t begin, std::size_t end, std::size_t stride,
+                          double noise, double kernel_sd, ValueFn fill_values, EnvelopeWorkspace& ws) {
+  LineFit fit;
+  if (end <= begin) return fit;
+  const std::size_t count = (end - begin + stride - 1) / stride;
+  if (!remembered_fit(row, begin, count, stride, noise, kernel_sd, ws))
+    fit_weights(row, begin, count, stride, noise, kernel_sd, ws);
+  const EnvelopeWorkspace::Remembered& m = ws.remembered;
+  ws.value.resize(count);
+  fill_values(ws.value.data(), ws.power.data(), count);
+  const double* y = ws.value.data();
+  const double* wt = ws.weight.data();
+  const double* tt = ws.time.data();
+  double sy = 0, sty = 0;
+  for (std::size_t i = 0; i < count; ++i) {
+    sy += wt[i] * y[i];
+    sty += wt[i] * tt[i] * y[i];
+  }
+  fit.points = count;
+  const double s0 = m.s0, s1 = m.s1, s2 = m.s2;
+  const double det = s0 * s2 - s1 * s1;
+  if (fit.points < 3 || !(det > 0)) return fit;
+  const double t_ref = static_cast<double>(begin) * row.time_step_s;
+  fit.slope = (s0 * sty - s1 * sy) / det;
+  fit.intercept = (s2 * sy - s1 * sty) / det - fit.slope * t_ref;
+  fit.slope_sd = m.slope_sd;
   return fit;
 }
 
@@ -127,11 +202,6 @@ std::size_t fit_stride(const EnvelopeRow& row) {
   // About 8 points per kernel width: the samples are correlated over ~2 s anyway.
   const double per = kernel_sd_s(row) / (8.0 * row.time_step_s);
   return std::max<std::size_t>(1, static_cast<std::size_t>(per));
-}
-
-double debiased_power(double p, double noise) {
-  // E|W|^2 = |W_signal|^2 + noise: subtract the noise, floor at a quarter of the raw power.
-  return std::max(p - noise, 0.25 * p);
 }
 
 DampingEstimate base_estimate(DampingMethod method, const EnvelopeRow& row, const EnvelopeWindow& win) {
@@ -187,6 +257,9 @@ std::string_view to_string(EstimateStatus status) {
 }
 
 void EnvelopeWorkspace::reserve(std::size_t columns, std::size_t reach) {
+  power.reserve(columns);
+  weight.reserve(columns);
+  samples.reserve(columns);
   value.reserve(columns);
   root_weight.reserve(columns);
   time.reserve(columns);
@@ -274,21 +347,22 @@ double phase_slope_frequency(const EnvelopeRow& row, const EnvelopeWindow& win, 
   sd_hz = NAN;
   if (win.end <= win.start + 2) return NAN;
   const std::size_t stride = 1;  // unwrapping needs every column (phase advance < pi per column)
-  // Unwrapped phase relative to the window start, accumulated column by column into ws.value as the
-  // fit asks for it (columns in increasing order, once each).
-  double acc = 0.0;
-  std::size_t last = win.start;
+  // Unwrapped phase relative to the window start, accumulated column by column.
   const double advance = kTwoPi * row.phase_reference_hz * row.time_step_s;  // 0 unless decimated
   const std::complex<double> derotate = std::polar(1.0, -advance);
   const double noise = win.noise_power;
   const LineFit fit = weighted_line_fit(
-      win.start, win.end, stride, row.time_step_s, kernel_sd_s(row),
-      [&](std::size_t c) {
-        for (; last < c; ++last)
-          acc += phase_angle(row.w[last + 1] * std::conj(row.w[last]) * derotate) + advance;
-        return acc;
+      row, win.start, win.end, stride, noise, kernel_sd_s(row),
+      [&](double* y, const double*, std::size_t count) {
+        const std::complex<double>* w = row.w.data() + win.start;
+        double acc = 0.0;
+        y[0] = acc;
+        for (std::size_t i = 1; i < count; ++i) {
+          acc += phase_angle(w[i] * std::conj(w[i - 1]) * derotate) + advance;
+          y[i] = acc;
+        }
       },
-      [&](std::size_t c) { return 2.0 * debiased_power(std::norm(row.w[c]), noise) / noise; }, ws);
+      ws);
   sd_hz = fit.slope_sd / kTwoPi;
   return fit.slope / kTwoPi;
 }
@@ -308,9 +382,11 @@ DampingEstimate estimate_ridge_ls(const EnvelopeRow& row, const EnvelopeWindow& 
   }
   const double noise = win.noise_power;
   const LineFit fit = weighted_line_fit(
-      win.start, win.end, fit_stride(row), row.time_step_s, kernel_sd_s(row),
-      [&](std::size_t c) { return 0.5 * std::log(debiased_power(std::norm(row.w[c]), noise)); },
-      [&](std::size_t c) { return 2.0 * debiased_power(std::norm(row.w[c]), noise) / noise; }, ws);
+      row, win.start, win.end, fit_stride(row), noise, kernel_sd_s(row),
+      [](double* y, const double* power, std::size_t count) {
+        for (std::size_t i = 0; i < count; ++i) y[i] = 0.5 * std::log(power[i]);
+      },
+      ws);
   e.points = fit.points;
   if (!std::isfinite(fit.slope)) {
     e.status = EstimateStatus::too_short;
