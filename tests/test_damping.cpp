@@ -609,3 +609,95 @@ TEST(EnvelopeWorkspace, ShiftedWindowOrOtherTimeStepOverEqualSamplesIsRecomputed
   EXPECT_TRUE(same_bits(sd_c, sd_c_fresh)) << sd_c << " vs " << sd_c_fresh;
   EXPECT_FALSE(same_bits(sd_a, sd_c_fresh));
 }
+
+namespace {
+
+// The phase-slope fit's standard uncertainty evaluated the slow way in the estimator's summation
+// order: weights and bread sums point by point, rho by its recurrence, the meat one lag at a time with
+// the even and odd points summed separately and added (the SSE2 lanes), then the last point of a lag
+// with an odd number of them. The estimator's passes over several lags at once must give these bits.
+double phase_sd_hz_in_summation_order(const EnvelopeRow& row, const EnvelopeWindow& win) {
+  const double dt = row.time_step_s, noise = win.noise_power;
+  const double kernel_sd = row.eta0 / (2.0 * kPi * row.f_row_hz);
+  const std::size_t count = win.end - win.start;
+  std::vector<double> u(count), v(count), t(count);
+  double s0 = 0, s1 = 0, s2 = 0;
+  const double t_ref = static_cast<double>(win.start) * dt;
+  for (std::size_t i = 0; i < count; ++i) {
+    const std::size_t c = win.start + i;
+    const double p = std::max(std::norm(row.w[c]) - noise, 0.25 * std::norm(row.w[c]));
+    const double w = 2.0 * p / noise;
+    t[i] = static_cast<double>(c) * dt - t_ref;
+    u[i] = std::sqrt(w);
+    v[i] = u[i] * t[i];
+    s0 += w;
+    s1 += w * t[i];
+    s2 += w * t[i] * t[i];
+  }
+  const double det = s0 * s2 - s1 * s1;
+  const double lag_step = dt / (2.0 * kernel_sd);
+  const std::size_t reach = std::min<std::size_t>(count - 1, static_cast<std::size_t>(std::ceil(6.0 / lag_step)));
+  const double l2 = lag_step * lag_step, q_step = std::exp(-2.0 * l2);
+  double r = 1.0, q = std::exp(-l2);
+  double m00 = 0, m01 = 0, m11 = 0;
+  for (std::size_t k = 0; k <= reach; ++k) {
+    const double rho = r * (k == 0 ? 1.0 : 2.0);
+    r *= q;
+    q *= q_step;
+    const std::size_t len = count - k;
+    double a[2] = {0, 0}, b[2] = {0, 0}, c[2] = {0, 0};
+    std::size_t i = 0;
+    for (; i + 2 <= len; i += 2)
+      for (std::size_t lane = 0; lane < 2; ++lane) {
+        const std::size_t j = i + lane;
+        a[lane] += u[j] * u[j + k];
+        b[lane] += v[j] * u[j + k] + u[j] * v[j + k];
+        c[lane] += v[j] * v[j + k];
+      }
+    double sa = a[0] + a[1], sb = b[0] + b[1], sc = c[0] + c[1];
+    if (i < len) {
+      sa += u[i] * u[i + k];
+      sb += v[i] * u[i + k] + u[i] * v[i + k];
+      sc += v[i] * v[i + k];
+    }
+    m00 += rho * sa;
+    m01 += 0.5 * rho * sb;
+    m11 += rho * sc;
+  }
+  const double b10 = -s1 / det, b11 = s0 / det;
+  const double var = b10 * b10 * m00 + 2.0 * b10 * b11 * m01 + b11 * b11 * m11;
+  return std::sqrt(std::max(var, 0.0)) / (2.0 * kPi);
+}
+
+}  // namespace
+
+// The sandwich meat's passes over two lags at once against one lag at a time, bit for bit: windows of
+// 3 to 70 points (odd and even point counts), reaches cut by the window (reach = count - 1) or by the
+// 6 correlation lengths, with odd and even numbers of lags.
+TEST(EnvelopeLineFit, MeatOverLagPairsEqualsLagByLagBitForBit) {
+  const double fs = 10000.0, f = 700.0;
+  const NoisyRow nr = noisy_row(fs, f, 0.01, 1e-3, 9);
+  ASSERT_GT(nr.w.size(), 400u);
+  int odd_lags = 0, even_lags = 0, cut_by_window = 0;
+  // Time steps (the row's samples stand for any grid here) for lag steps dt / (2 s) that reach
+  // 27 (the analyzer's), 20, 40 and 14 lags.
+  for (const double lag_step : {0.2266, 0.3, 0.15, 0.45}) {
+    const double dt = lag_step * 2.0 * 7.0 / (2.0 * kPi * f);
+    const EnvelopeRow row{nr.w, dt, f, 7.0, nr.noise_power};
+    for (std::size_t count = 3; count <= 70; ++count) {
+      const EnvelopeWindow win{300, 300 + count, 300, nr.noise_power, EstimateStatus::ok};
+      double sd = NAN;
+      phase_slope_frequency(row, win, sd);
+      const double ref = phase_sd_hz_in_summation_order(row, win);
+      ASSERT_TRUE(std::isfinite(ref) && ref > 0);
+      EXPECT_TRUE(same_bits(sd, ref)) << "lag step " << lag_step << " count " << count << ": " << sd << " vs " << ref;
+      const std::size_t reach = std::min<std::size_t>(count - 1, static_cast<std::size_t>(std::ceil(6.0 / lag_step)));
+      ((reach + 1) % 2 ? odd_lags : even_lags) += 1;
+      cut_by_window += reach == count - 1;
+    }
+  }
+  EXPECT_GT(odd_lags, 20);
+  EXPECT_GT(even_lags, 20);
+  EXPECT_GT(cut_by_window, 20);
+  EXPECT_LT(cut_by_window, 4 * 68 - 20);
+}

@@ -58,6 +58,39 @@ bool remembered_fit(const EnvelopeRow& row, std::size_t begin, std::size_t count
   return true;
 }
 
+Pair load_pair(const double* p) {
+  Pair x;
+  std::memcpy(&x, p, sizeof x);
+  return x;
+}
+
+// One lag k's correlations in SSE2 pairs (GCC/Clang vector extension; the compiler does not vectorise
+// these reductions itself): lane 0 sums the even i, lane 1 the odd i.
+struct LagSums {
+  Pair a = {0, 0}, b = {0, 0}, c = {0, 0};
+  // Points i and i + 1: ui, vi hold u and v there, uk and vk point at u_{i+k} and v_{i+k}.
+  void add(Pair ui, Pair vi, const double* uk, const double* vk) {
+    const Pair uki = load_pair(uk), vki = load_pair(vk);
+    a += ui * uki;
+    b += vi * uki + ui * vki;
+    c += vi * vki;
+  }
+  // The lanes, the last point when the lag has an odd number of them (i = len - 1), times rho_k
+  // into the meat.
+  void add_to_meat(const double* u, const double* v, std::size_t k, std::size_t i, std::size_t len,
+                   double rho_k, double& m00, double& m01, double& m11) const {
+    double sa = a[0] + a[1], sb = b[0] + b[1], sc = c[0] + c[1];
+    if (i < len) {
+      sa += u[i] * u[i + k];
+      sb += v[i] * u[i + k] + u[i] * v[i + k];
+      sc += v[i] * v[i + k];
+    }
+    m00 += rho_k * sa;
+    m01 += 0.5 * rho_k * sb;
+    m11 += rho_k * sc;
+  }
+};
+
 // Sandwich standard uncertainty of the slope from the weights and times in the workspace (s0, s1 and
 // det = s0 s2 - s1^2 > 0: the bread).
 double sandwich_slope_sd(std::size_t count, std::size_t stride, double dt, double kernel_sd, double s0,
@@ -94,32 +127,32 @@ double sandwich_slope_sd(std::size_t count, std::size_t stride, double dt, doubl
   ws.value.resize(count);  // scratch here: the values are filled after the weights
   double* v = ws.value.data();
   for (std::size_t i = 0; i < count; ++i) v[i] = u[i] * tt[i];
-  for (std::size_t k = 0; k <= reach; ++k) {
-    const std::size_t len = count - k;
-    const double* uk = u + k;
-    const double* vk = v + k;
-    // SSE2 pairs (GCC/Clang vector extension; the compiler does not vectorise these reductions itself).
-    Pair a = {0, 0}, b = {0, 0}, c = {0, 0};
+  // Two lags per pass (their six sums are independent chains, the loads of u_i and v_i shared); each
+  // lag's sums are accumulated in the same order as one lag at a time, so the bits do not change.
+  std::size_t k = 0;
+  for (; k + 1 <= reach; k += 2) {
+    const std::size_t len = count - k;  // points of lag k; lag k + 1 has len - 1
+    LagSums first, second;
     std::size_t i = 0;
-    for (; i + 2 <= len; i += 2) {
-      Pair ui, vi, uki, vki;
-      std::memcpy(&ui, u + i, sizeof ui);
-      std::memcpy(&vi, v + i, sizeof vi);
-      std::memcpy(&uki, uk + i, sizeof uki);
-      std::memcpy(&vki, vk + i, sizeof vki);
-      a += ui * uki;
-      b += vi * uki + ui * vki;
-      c += vi * vki;
+    for (; i + 3 <= len; i += 2) {
+      const Pair ui = load_pair(u + i), vi = load_pair(v + i);
+      first.add(ui, vi, u + k + i, v + k + i);
+      second.add(ui, vi, u + k + 1 + i, v + k + 1 + i);
     }
-    double sa = a[0] + a[1], sb = b[0] + b[1], sc = c[0] + c[1];
-    if (i < len) {
-      sa += u[i] * uk[i];
-      sb += v[i] * uk[i] + u[i] * vk[i];
-      sc += v[i] * vk[i];
+    const std::size_t i_second = i;
+    if (i + 2 <= len) {
+      first.add(load_pair(u + i), load_pair(v + i), u + k + i, v + k + i);
+      i += 2;
     }
-    m00 += rho[k] * sa;
-    m01 += 0.5 * rho[k] * sb;
-    m11 += rho[k] * sc;
+    first.add_to_meat(u, v, k, i, len, rho[k], m00, m01, m11);
+    second.add_to_meat(u, v, k + 1, i_second, len - 1, rho[k + 1], m00, m01, m11);
+  }
+  if (k <= reach) {
+    const std::size_t len = count - k;
+    LagSums last;
+    std::size_t i = 0;
+    for (; i + 2 <= len; i += 2) last.add(load_pair(u + i), load_pair(v + i), u + k + i, v + k + i);
+    last.add_to_meat(u, v, k, i, len, rho[k], m00, m01, m11);
   }
   // Bread (X^T W X)^-1 = [s2 -s1; -s1 s0] / det; slope variance = row 2 of bread * meat * bread col 2.
   const double b10 = -s1 / det, b11 = s0 / det;
