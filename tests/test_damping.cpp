@@ -612,19 +612,28 @@ TEST(EnvelopeWorkspace, ShiftedWindowOrOtherTimeStepOverEqualSamplesIsRecomputed
 
 namespace {
 
-// The phase-slope fit's standard uncertainty evaluated the slow way in the estimator's summation
-// order: weights and bread sums point by point, rho by its recurrence, the meat one lag at a time with
-// the even and odd points summed separately and added (the SSE2 lanes), then the last point of a lag
-// with an odd number of them. The estimator's passes over several lags at once must give these bits.
-double phase_sd_hz_in_summation_order(const EnvelopeRow& row, const EnvelopeWindow& win) {
+struct PhaseFit {
+  double f_hz = NAN, sd_hz = NAN;
+};
+
+// The phase-slope fit evaluated the slow way in the estimator's summation order: column by column
+// the unwrapped phase (the advance phase_angle(w_c conj(w_{c-1}) derotate) + advance added to a
+// running sum), the weights and the sums, rho by its recurrence, the meat one lag at a time with the
+// even and odd points summed separately and added (the SSE2 lanes), then the last point of a lag
+// with an odd number of them. The estimator's advances two columns at a time and its passes over
+// several lags at once must give these bits.
+PhaseFit phase_fit_in_summation_order(const EnvelopeRow& row, const EnvelopeWindow& win) {
   const double dt = row.time_step_s, noise = win.noise_power;
   const double kernel_sd = row.eta0 / (2.0 * kPi * row.f_row_hz);
+  const double advance = 2.0 * kPi * row.phase_reference_hz * dt;
+  const std::complex<double> derotate = std::polar(1.0, -advance);
   const std::size_t count = win.end - win.start;
   std::vector<double> u(count), v(count), t(count);
-  double s0 = 0, s1 = 0, s2 = 0;
+  double s0 = 0, s1 = 0, s2 = 0, sy = 0, sty = 0, phase = 0.0;
   const double t_ref = static_cast<double>(win.start) * dt;
   for (std::size_t i = 0; i < count; ++i) {
     const std::size_t c = win.start + i;
+    if (i > 0) phase += phase_angle(row.w[c] * std::conj(row.w[c - 1]) * derotate) + advance;
     const double p = std::max(std::norm(row.w[c]) - noise, 0.25 * std::norm(row.w[c]));
     const double w = 2.0 * p / noise;
     t[i] = static_cast<double>(c) * dt - t_ref;
@@ -633,6 +642,8 @@ double phase_sd_hz_in_summation_order(const EnvelopeRow& row, const EnvelopeWind
     s0 += w;
     s1 += w * t[i];
     s2 += w * t[i] * t[i];
+    sy += w * phase;
+    sty += w * t[i] * phase;
   }
   const double det = s0 * s2 - s1 * s1;
   const double lag_step = dt / (2.0 * kernel_sd);
@@ -666,7 +677,7 @@ double phase_sd_hz_in_summation_order(const EnvelopeRow& row, const EnvelopeWind
   }
   const double b10 = -s1 / det, b11 = s0 / det;
   const double var = b10 * b10 * m00 + 2.0 * b10 * b11 * m01 + b11 * b11 * m11;
-  return std::sqrt(std::max(var, 0.0)) / (2.0 * kPi);
+  return {(s0 * sty - s1 * sy) / det / (2.0 * kPi), std::sqrt(std::max(var, 0.0)) / (2.0 * kPi)};
 }
 
 }  // namespace
@@ -688,7 +699,7 @@ TEST(EnvelopeLineFit, MeatOverLagPairsEqualsLagByLagBitForBit) {
       const EnvelopeWindow win{300, 300 + count, 300, nr.noise_power, EstimateStatus::ok};
       double sd = NAN;
       phase_slope_frequency(row, win, sd);
-      const double ref = phase_sd_hz_in_summation_order(row, win);
+      const double ref = phase_fit_in_summation_order(row, win).sd_hz;
       ASSERT_TRUE(std::isfinite(ref) && ref > 0);
       EXPECT_TRUE(same_bits(sd, ref)) << "lag step " << lag_step << " count " << count << ": " << sd << " vs " << ref;
       const std::size_t reach = std::min<std::size_t>(count - 1, static_cast<std::size_t>(std::ceil(6.0 / lag_step)));
@@ -700,4 +711,60 @@ TEST(EnvelopeLineFit, MeatOverLagPairsEqualsLagByLagBitForBit) {
   EXPECT_GT(even_lags, 20);
   EXPECT_GT(cut_by_window, 20);
   EXPECT_LT(cut_by_window, 4 * 68 - 20);
+}
+
+// The phase advances two columns at a time (SSE2 lanes, phase_angle's series when both lie in its
+// range, else the scalar expression) against the column-by-column fit, bit for bit: a row near the
+// mode (every advance in the series' range) and noise-dominated rows with advances out of it, with
+// and without a phase reference (derotation), windows of odd and even length.
+TEST(PhaseSlope, AdvancesInPairsEqualColumnByColumnBitForBit) {
+  const double fs = 10000.0, f = 700.0;
+  const NoisyRow clean = noisy_row(fs, f, 0.01, 1e-4, 21);
+  const NoisyRow noisy = noisy_row(fs, f, 0.01, 0.3, 22);
+  int in_range = 0, out_of_range = 0;
+  for (const NoisyRow* nr : {&clean, &noisy}) {
+    for (const double reference : {0.0, 690.0}) {
+      for (const double dt_scale : {1.0, 9.0}) {  // every column, or a coarser grid (larger advances)
+        EnvelopeRow row{nr->w, nr->dt, f, 7.0, nr->noise_power};
+        row.phase_reference_hz = reference;
+        std::vector<std::complex<double>> coarse;
+        if (dt_scale > 1.0) {
+          for (std::size_t c = 0; c < nr->w.size(); c += 9) coarse.push_back(nr->w[c]);
+          row.w = coarse;
+          row.time_step_s = nr->dt * dt_scale;
+        }
+        const double advance = 2.0 * kPi * reference * row.time_step_s;
+        for (const std::size_t start : {std::size_t{20}, std::size_t{33}}) {
+          for (std::size_t count = 3; count <= 64 && start + count <= row.w.size(); count += 1) {
+            const EnvelopeWindow win{start, start + count, start, nr->noise_power, EstimateStatus::ok};
+            double sd = NAN;
+            const double got = phase_slope_frequency(row, win, sd);
+            const PhaseFit ref = phase_fit_in_summation_order(row, win);
+            ASSERT_TRUE(same_bits(got, ref.f_hz))
+                << "reference " << reference << " dt x" << dt_scale << " start " << start << " count " << count
+                << ": " << got << " vs " << ref.f_hz;
+            ASSERT_TRUE(same_bits(sd, ref.sd_hz));
+          }
+        }
+        for (std::size_t c = 21; c < std::min<std::size_t>(row.w.size(), 97); ++c) {
+          const std::complex<double> z = row.w[c] * std::conj(row.w[c - 1]) * std::polar(1.0, -advance);
+          (z.real() > 0 && std::abs(z.imag()) <= 0.125 * z.real() ? in_range : out_of_range) += 1;
+        }
+      }
+    }
+  }
+  EXPECT_GT(in_range, 100);
+  EXPECT_GT(out_of_range, 50);
+
+  // Zero columns (a transform of a silent stretch): arg 0 = 0, where the series would give 0 / 0.
+  std::vector<std::complex<double>> w = clean.w;
+  for (std::size_t c = 40; c < 46; ++c) w[c] = 0.0;
+  const EnvelopeRow row{w, clean.dt, f, 7.0, clean.noise_power};
+  for (std::size_t count = 20; count <= 40; ++count) {
+    const EnvelopeWindow win{30, 30 + count, 30, clean.noise_power, EstimateStatus::ok};
+    double sd = NAN;
+    const double got = phase_slope_frequency(row, win, sd);
+    EXPECT_TRUE(std::isfinite(got));
+    EXPECT_TRUE(same_bits(got, phase_fit_in_summation_order(row, win).f_hz)) << "count " << count;
+  }
 }

@@ -4,6 +4,7 @@
 #include <cmath>
 #include <cstring>
 #include <numbers>
+#include <type_traits>
 #include <vector>
 
 namespace ridgewatch::dsp {
@@ -36,6 +37,12 @@ double debiased_power(double p, double noise) {
 // slope's row and window unless f_d moves the row (ridgewatch analyze rw60.wav: it took them over in
 // all 1500 impacts; estimate_ridge_ls 19.9M -> 5.7M instructions, the meat was most of it).
 using Pair = double __attribute__((vector_size(2 * sizeof(double))));
+
+template <typename T>
+T splat(double x) {
+  if constexpr (std::is_same_v<T, Pair>) return Pair{x, x};
+  else return x;
+}
 
 struct LineFit {
   double intercept = NAN, slope = NAN, slope_sd = NAN;
@@ -231,6 +238,51 @@ LineFit weighted_line_fit(const EnvelopeRow& row, std::size_t begin, std::size_t
   return fit;
 }
 
+// phase_angle's series, atan t for |t| <= 1/8, on a double or lane by lane on a Pair (the same
+// operations, so the same bits).
+template <typename T>
+T atan_series(T t) {
+  const T s = t * t;
+  T p = splat<T>(1.0 / 19.0);
+  p = splat<T>(1.0 / 17.0) - s * p;
+  p = splat<T>(1.0 / 15.0) - s * p;
+  p = splat<T>(1.0 / 13.0) - s * p;
+  p = splat<T>(1.0 / 11.0) - s * p;
+  p = splat<T>(1.0 / 9.0) - s * p;
+  p = splat<T>(1.0 / 7.0) - s * p;
+  p = splat<T>(1.0 / 5.0) - s * p;
+  p = splat<T>(1.0 / 3.0) - s * p;
+  p = splat<T>(1.0) - s * p;
+  return t * p;
+}
+
+// The phase advances d_i = phase_angle(w_i conj(w_{i-1}) derotate) + advance of the columns i and
+// i + 1 (w points at w_i) into d[0] and d[1], the two columns in the lanes of Pairs: the complex
+// products formed as std::complex forms them (x.r y.r - x.i y.i, x.r y.i + x.i y.r; the library's
+// special-value handling only acts on NaN results) and phase_angle's series, when both products lie
+// in its range; otherwise (or for a NaN) the scalar expression. The same bits as the scalar
+// expression either way: the phase-slope fit's advances were a chain of ~100 cycles per column
+// (division and ten Horner steps), now two columns per chain.
+void phase_advances_pair(const std::complex<double>* w, std::complex<double> derotate, double advance,
+                         double* d) {
+  const Pair a = {w[0].real(), w[1].real()}, b = {w[0].imag(), w[1].imag()};
+  const Pair c = {w[-1].real(), w[0].real()}, nd = {-w[-1].imag(), -w[0].imag()};  // conj(w_{i-1})
+  const Pair re1 = a * c - b * nd, im1 = a * nd + b * c;
+  const Pair dr = splat<Pair>(derotate.real()), di = splat<Pair>(derotate.imag());
+  const Pair re = re1 * dr - im1 * di, im = re1 * di + im1 * dr;
+  // phase_angle's test re > 0 && |im| <= re / 8, false for NaN like it.
+  const Pair q = splat<Pair>(0.125) * re;
+  const auto in_range = (re > splat<Pair>(0.0)) & (im <= q) & (-im <= q);
+  if (in_range[0] && in_range[1]) {
+    const Pair p = atan_series(im / re) + splat<Pair>(advance);
+    d[0] = p[0];
+    d[1] = p[1];
+    return;
+  }
+  for (std::size_t j = 0; j < 2; ++j)
+    d[j] = phase_angle(w[j] * std::conj(w[static_cast<std::ptrdiff_t>(j) - 1]) * derotate) + advance;
+}
+
 std::size_t fit_stride(const EnvelopeRow& row) {
   // About 8 points per kernel width: the samples are correlated over ~2 s anyway.
   const double per = kernel_sd_s(row) / (8.0 * row.time_step_s);
@@ -353,20 +405,7 @@ double phase_angle(std::complex<double> z) {
   // |im| <= re / 8: |arg z| <= 0.1244. atan t = t sum_j (-t^2)^j / (2j + 1); with t^2 <= 1/64 the
   // first omitted term (j = 9) is below 64^-9 / 19 = 3e-18 of the sum, so the series (Horner in t^2)
   // is as accurate as the division im / re that forms t.
-  if (re > 0.0 && std::abs(im) <= 0.125 * re) {
-    const double t = im / re, s = t * t;
-    double p = 1.0 / 19.0;
-    p = 1.0 / 17.0 - s * p;
-    p = 1.0 / 15.0 - s * p;
-    p = 1.0 / 13.0 - s * p;
-    p = 1.0 / 11.0 - s * p;
-    p = 1.0 / 9.0 - s * p;
-    p = 1.0 / 7.0 - s * p;
-    p = 1.0 / 5.0 - s * p;
-    p = 1.0 / 3.0 - s * p;
-    p = 1.0 - s * p;
-    return t * p;
-  }
+  if (re > 0.0 && std::abs(im) <= 0.125 * re) return atan_series(im / re);
   return std::arg(z);
 }
 
@@ -387,11 +426,15 @@ double phase_slope_frequency(const EnvelopeRow& row, const EnvelopeWindow& win, 
   const LineFit fit = weighted_line_fit(
       row, win.start, win.end, stride, noise, kernel_sd_s(row),
       [&](double* y, const double*, std::size_t count) {
+        // The advances into y[1..count), two columns at a time, then their running sum.
         const std::complex<double>* w = row.w.data() + win.start;
+        std::size_t i = 1;
+        for (; i + 2 <= count; i += 2) phase_advances_pair(w + i, derotate, advance, y + i);
+        if (i < count) y[i] = phase_angle(w[i] * std::conj(w[i - 1]) * derotate) + advance;
         double acc = 0.0;
         y[0] = acc;
-        for (std::size_t i = 1; i < count; ++i) {
-          acc += phase_angle(w[i] * std::conj(w[i - 1]) * derotate) + advance;
+        for (i = 1; i < count; ++i) {
+          acc += y[i];
           y[i] = acc;
         }
       },
