@@ -768,3 +768,78 @@ TEST(PhaseSlope, AdvancesInPairsEqualColumnByColumnBitForBit) {
     EXPECT_TRUE(same_bits(got, phase_fit_in_summation_order(row, win).f_hz)) << "count " << count;
   }
 }
+
+namespace {
+
+// choose_window as it was before its peak scan kept the running maximum as a value: the norm at the
+// running peak recomputed for every column (the row's noise power given).
+EnvelopeWindow choose_window_recomputing_norms(const EnvelopeRow& row, const EnvelopeOptions& options) {
+  EnvelopeWindow win;
+  const std::size_t n = row.w.size();
+  const double dt = row.time_step_s;
+  const double s = row.eta0 / (2.0 * kPi * row.f_row_hz);
+  const auto edge = static_cast<std::size_t>(std::ceil(options.edge_widths * s / dt));
+  const auto onset = static_cast<std::size_t>(std::max(0.0, std::round(options.onset_s / dt)));
+  win.noise_power = row.noise_power;
+  if (n < 2 * edge + 3 || onset >= n - edge) {
+    win.status = EstimateStatus::too_short;
+    return win;
+  }
+  const std::size_t last = n - edge;
+  win.peak = onset;
+  for (std::size_t c = onset; c < last; ++c)
+    if (std::norm(row.w[c]) > std::norm(row.w[win.peak])) win.peak = c;
+  const auto after_peak = static_cast<std::size_t>(std::ceil(2.0 * s / dt));
+  win.start = std::max(onset + edge, win.peak + after_peak);
+  if (win.start >= last) {
+    win.status = EstimateStatus::too_short;
+    win.end = win.start;
+    return win;
+  }
+  const double threshold = options.end_snr * win.noise_power;
+  win.end = win.start;
+  while (win.end < last && std::norm(row.w[win.end]) >= threshold) ++win.end;
+  if (std::norm(row.w[win.peak]) < 4.0 * threshold) {
+    win.status = EstimateStatus::low_snr;
+  } else if (static_cast<double>(win.end - win.start) * dt < options.min_window_widths * s) {
+    win.status = EstimateStatus::too_short;
+  }
+  return win;
+}
+
+}  // namespace
+
+// The peak scan with the running maximum as a value against the norm recomputed at the running peak:
+// random rows with exact ties (the first maximum wins), NaN columns (ignored) and a NaN at the onset
+// (no column compares greater, the peak stays there), decaying rows, several onsets.
+TEST(ChooseWindow, PeakScanEqualsRecomputedNorms) {
+  std::mt19937 rng(17);
+  std::uniform_int_distribution<int> level(0, 6), kind(0, 9);
+  int ties = 0, nan_onsets = 0;
+  for (int trial = 0; trial < 3000; ++trial) {
+    std::vector<std::complex<double>> w(40 + trial % 90);
+    for (std::size_t c = 0; c < w.size(); ++c) {
+      const double a = level(rng) * std::exp(-0.02 * static_cast<double>(c) * (trial % 3));
+      const int k = kind(rng);
+      w[c] = k < 4 ? std::complex<double>(a, 0.0) : k < 8 ? std::complex<double>(0.0, -a) : std::complex<double>(a, a);
+      if (trial % 7 == 0 && k == 9 && c % 5 == 0) w[c] = {NAN, 0.0};
+    }
+    EnvelopeOptions opt;
+    opt.onset_s = 0.001 * (trial % 11);
+    const EnvelopeRow row{w, 0.001, 500.0, 7.0, 0.5 + 0.1 * (trial % 13)};
+    const auto onset = static_cast<std::size_t>(std::round(opt.onset_s / row.time_step_s));
+    if (trial % 29 == 0 && onset < w.size()) {
+      w[onset] = {NAN, NAN};
+      ++nan_onsets;
+    }
+    const EnvelopeWindow got = choose_window(row, opt);
+    const EnvelopeWindow ref = choose_window_recomputing_norms(row, opt);
+    ASSERT_EQ(got.peak, ref.peak) << "trial " << trial;
+    ASSERT_EQ(got.start, ref.start) << "trial " << trial;
+    ASSERT_EQ(got.end, ref.end) << "trial " << trial;
+    ASSERT_EQ(got.status, ref.status) << "trial " << trial;
+    for (std::size_t c = ref.peak + 1; c < w.size(); ++c) ties += std::norm(w[c]) == std::norm(w[ref.peak]);
+  }
+  EXPECT_GT(ties, 1000);
+  EXPECT_GT(nan_onsets, 50);
+}
