@@ -107,8 +107,24 @@ struct EnvelopeWindow {
 /// Scratch arrays of the line fits below. The estimators resize them to the window length (plus the
 /// correlation reach of the sandwich covariance); callers on a real-time path reserve() them once, after
 /// which the estimators allocate nothing.
+///
+/// The workspace also remembers the last fit's weights and sandwich meat: they depend only on the row's
+/// samples at the fit's points, the noise power, the column grid and the kernel width, not on the
+/// fitted values, so phase_slope_frequency and estimate_ridge_ls on the same row and window (one impact
+/// in the analyzer) share them. A fit reuses them only when all of those inputs are equal bit for bit
+/// (the samples are kept in `samples` and compared), so the results do not depend on what the
+/// workspace saw before. The members are the estimators' own: callers only reserve().
 struct EnvelopeWorkspace {
   std::vector<double> value, root_weight, time, correlation;
+  std::vector<double> power, weight;           ///< debiased |W|^2 and weight per point
+  std::vector<std::complex<double>> samples;   ///< W at the points of the remembered fit
+  struct Remembered {
+    bool valid = false;
+    std::size_t begin = 0, stride = 0;
+    double time_step_s = 0, kernel_sd_s = 0, noise_power = 0;
+    double s0 = 0, s1 = 0, s2 = 0;  ///< weight sums sum w, sum w t, sum w t^2
+    double slope_sd = NAN;          ///< sandwich standard uncertainty of the slope
+  } remembered;
   /// Reserves room for windows of up to `columns` columns and correlation reaches of up to `reach`.
   void reserve(std::size_t columns, std::size_t reach);
 };
