@@ -30,6 +30,26 @@ inline cd mul(cd a, cd b) {
 }
 inline cd inv(cd b) { return std::conj(b) / std::norm(b); }
 
+// SSE2 pairs (GCC/Clang vector extension).
+using Pair = double __attribute__((vector_size(2 * sizeof(double))));
+
+// A mode's two terms per bin, for z and for conj(z), side by side: lane 0 holds what the scalar
+// complex arithmetic above computes for the z term, lane 1 the same for the conj(z) term, by the same
+// operations in the same order (conjugating an operand negates its imaginary part exactly, and
+// x - y rounds as x + (-y)), so every value is bit for bit the scalar one, at half the instructions
+// and divisions.
+struct Split {
+  Pair re, im;
+};
+inline Split smul(const Split& a, const Split& b) {  // mul() per lane
+  return {a.re * b.re - a.im * b.im, a.re * b.im + a.im * b.re};
+}
+inline Split with_conj(cd a) { return {Pair{a.real(), a.real()}, Pair{a.imag(), -a.imag()}}; }  // (a, conj a)
+inline Split both(cd a) { return {Pair{a.real(), a.real()}, Pair{a.imag(), a.imag()}}; }        // (a, a)
+inline cd half_sum(const Split& a) {  // 0.5 * (lane 0 + lane 1)
+  return {0.5 * (a.re[0] + a.re[1]), 0.5 * (a.im[0] + a.im[1])};
+}
+
 // Parameter layout per mode: [f_hz, ln zeta, Re C, Im C]; then residual terms [Re b, Im b] each.
 constexpr int kPerMode = 4;
 
@@ -44,6 +64,7 @@ struct Problem {
   std::vector<double> basis;  // u^b for each bin and residual term b (row-major), made once per fit
   int modes = 0;
   int residual_terms = 0;
+  bool reference = false;  // the plain scalar kernels (SpectralModeFitter::use_reference_kernels)
 
   int params() const { return kPerMode * modes + 2 * residual_terms; }
   int values() const { return 2 * static_cast<int>(data.size()); }
@@ -52,6 +73,8 @@ struct Problem {
     cd z, zn, dz_df, dz_du;
     cd c;
     cd one_minus_zn, zn1, c_dz_df, c_dz_du;  // 1 - z^N, z^(N-1), C dz/df, C dz/du
+    // (a, conj a) of z, 1 - z^N, C, N z^(N-1), C dz/df, C dz/du for the per-bin Split arithmetic
+    Split z2, one_minus_zn2, c2, n_zn1_2, c_dz_df2, c_dz_du2;
   };
   mutable std::vector<ModeState> states;  // one per mode, filled by for_each_bin
 
@@ -75,14 +98,60 @@ struct Problem {
     m.zn1 = std::exp((n_samples - 1.0) * exponent);
     m.c_dz_df = m.c * m.dz_df;
     m.c_dz_du = m.c * m.dz_du;
+    m.z2 = with_conj(m.z);
+    m.one_minus_zn2 = with_conj(m.one_minus_zn);
+    m.c2 = with_conj(m.c);
+    m.n_zn1_2 = with_conj(n_samples * m.zn1);  // n_samples * conj(zn1) = conj(n_samples * zn1) exactly
+    m.c_dz_df2 = with_conj(m.c_dz_df);
+    m.c_dz_du2 = with_conj(m.c_dz_du);
     return m;
+  }
+
+  // Mode m's term of X_model_k, w = e^{-2 pi i k / N}, and when col != nullptr its four Jacobian
+  // entries (complex: d/df, d/d ln zeta, d/d Re C, d/d Im C):
+  //   G(z, k) = (1 - z^N) / d,  d = 1 - z w_k,  G'(z) = (-N z^(N-1) d + (1 - z^N) w_k) / d^2
+  //           = (G w_k - N z^(N-1)) / d,
+  // so each mode costs two complex reciprocals per bin. The z term (g1 = G(z, k), ...) and the
+  // conj(z) term (g2 = G(conj z, k), ...) go side by side in the lanes of Split values.
+  static cd mode_bin(const ModeState& m, const Split& wk, cd* col) {
+    // inv = conj(d) / |d|^2, d = 1 - z w_k (real part 1 - re, which rounds as (-re) + 1)
+    const Split zw = smul(m.z2, wk);
+    const Pair d_re = Pair{1.0, 1.0} - zw.re, d_im = -zw.im;
+    const Pair nrm = d_re * d_re + d_im * d_im;
+    const Split inv12{d_re / nrm, -d_im / nrm};
+    const Split g12 = smul(m.one_minus_zn2, inv12);
+    const cd out = half_sum(smul(m.c2, g12));  // 0.5 (C g1 + conj(C) g2)
+    if (!col) return out;
+    const Split gw = smul(g12, wk);
+    const Split gp12 = smul({gw.re - m.n_zn1_2.re, gw.im - m.n_zn1_2.im}, inv12);  // (g w_k - N z^(N-1)) / d
+    col[0] = half_sum(smul(m.c_dz_df2, gp12));
+    col[1] = half_sum(smul(m.c_dz_du2, gp12));
+    col[2] = half_sum(g12);
+    const cd diff(g12.re[0] - g12.re[1], g12.im[0] - g12.im[1]);  // g1 - g2
+    col[3] = cd(-0.5 * diff.imag(), 0.5 * diff.real());              // i (g1 - g2) / 2
+    return out;
+  }
+  // The same in scalar complex arithmetic, one term at a time: the reference mode_bin equals bit for
+  // bit (SpectralModeFitter::use_reference_kernels; tests compare).
+  static cd mode_bin_reference(const ModeState& m, cd wk, double n_samples, cd* col) {
+    const cd inv1 = inv(1.0 - mul(m.z, wk));
+    const cd inv2 = inv(1.0 - mul(std::conj(m.z), wk));
+    const cd g1 = mul(m.one_minus_zn, inv1);
+    const cd g2 = mul(std::conj(m.one_minus_zn), inv2);
+    const cd out = 0.5 * (mul(m.c, g1) + mul(std::conj(m.c), g2));
+    if (!col) return out;
+    const cd gp1 = mul(mul(g1, wk) - n_samples * m.zn1, inv1);
+    const cd gp2 = mul(mul(g2, wk) - n_samples * std::conj(m.zn1), inv2);
+    col[0] = 0.5 * (mul(m.c_dz_df, gp1) + mul(std::conj(m.c_dz_df), gp2));
+    col[1] = 0.5 * (mul(m.c_dz_du, gp1) + mul(std::conj(m.c_dz_du), gp2));
+    col[2] = 0.5 * (g1 + g2);
+    const cd diff = g1 - g2;
+    col[3] = cd(-0.5 * diff.imag(), 0.5 * diff.real());  // i (g1 - g2) / 2
+    return out;
   }
 
   // Calls sink(k, X_model_k, jrow) for every bin k; when jrow != nullptr it first receives
   // dX_model_k / dparams (complex, params() entries).
-  //   G(z, k) = (1 - z^N) / d,  d = 1 - z w_k,  G'(z) = (-N z^(N-1) d + (1 - z^N) w_k) / d^2
-  //           = (G w_k - N z^(N-1)) / d,
-  // so each mode costs two complex reciprocals per bin.
   template <typename V, typename Sink>
   void for_each_bin(const V& x, cd* jrow, Sink&& sink) const {
     states.resize(static_cast<std::size_t>(modes));
@@ -90,23 +159,11 @@ struct Problem {
     const int lin0 = kPerMode * modes;
     for (std::size_t k = 0; k < data.size(); ++k) {
       cd out(0.0, 0.0);
-      const cd wk = w[k];
+      const Split wk = both(w[k]);
       for (int j = 0; j < modes; ++j) {
         const ModeState& m = states[static_cast<std::size_t>(j)];
-        const cd inv1 = inv(1.0 - mul(m.z, wk));
-        const cd inv2 = inv(1.0 - mul(std::conj(m.z), wk));
-        const cd g1 = mul(m.one_minus_zn, inv1);
-        const cd g2 = mul(std::conj(m.one_minus_zn), inv2);
-        out += 0.5 * (mul(m.c, g1) + mul(std::conj(m.c), g2));
-        if (!jrow) continue;
-        const cd gp1 = mul(mul(g1, wk) - n_samples * m.zn1, inv1);
-        const cd gp2 = mul(mul(g2, wk) - n_samples * std::conj(m.zn1), inv2);
-        cd* col = jrow + kPerMode * j;
-        col[0] = 0.5 * (mul(m.c_dz_df, gp1) + mul(std::conj(m.c_dz_df), gp2));
-        col[1] = 0.5 * (mul(m.c_dz_du, gp1) + mul(std::conj(m.c_dz_du), gp2));
-        col[2] = 0.5 * (g1 + g2);
-        const cd diff = g1 - g2;
-        col[3] = cd(-0.5 * diff.imag(), 0.5 * diff.real());  // i (g1 - g2) / 2
+        cd* col = jrow ? jrow + kPerMode * j : nullptr;
+        out += reference ? mode_bin_reference(m, w[k], n_samples, col) : mode_bin(m, wk, col);
       }
       for (int b = 0; b < residual_terms; ++b) {
         const double ub = basis[k * static_cast<std::size_t>(residual_terms) + static_cast<std::size_t>(b)];
@@ -190,7 +247,6 @@ constexpr std::size_t kPhases = 8;
 // kPhases recursions per bin in SSE2 pairs (GCC/Clang vector extension): 4 independent chains per bin
 // and step. (An AVX2 variant, two bins in 4-wide vectors, measured 4.5 us per impact slower: the
 // analyzer runs it in short bursts, each paying the wake-up of the upper vector lanes.)
-using Pair = double __attribute__((vector_size(2 * sizeof(double))));
 constexpr std::size_t kPairs = kPhases / 2;
 
 // The recursions of B bins (coefficients coef[0..B)) in one pass over the samples: x holds m_full rows
@@ -381,13 +437,24 @@ void linear_normal_equations(const Problem& p, const SmallVec& x, SmallMat& a, S
   p.states.resize(static_cast<std::size_t>(p.modes));
   for (int j = 0; j < p.modes; ++j) p.states[static_cast<std::size_t>(j)] = p.mode_state(x, j);
   for (std::size_t k = 0; k < p.data.size(); ++k) {
-    const cd wk = p.w[k];
+    const Split wk = both(p.w[k]);
     for (int j = 0; j < p.modes; ++j) {
       const Problem::ModeState& m = p.states[static_cast<std::size_t>(j)];
-      const cd g1 = mul(m.one_minus_zn, inv(1.0 - mul(m.z, wk)));
-      const cd g2 = mul(std::conj(m.one_minus_zn), inv(1.0 - mul(std::conj(m.z), wk)));
-      const cd c2 = 0.5 * (g1 + g2);
-      const cd diff = g1 - g2;
+      // Jacobian entries d/d Re C and d/d Im C, as Problem::mode_bin (_reference) forms them.
+      cd c2, diff;
+      if (p.reference) {
+        const cd g1 = mul(m.one_minus_zn, inv(1.0 - mul(m.z, p.w[k])));
+        const cd g2 = mul(std::conj(m.one_minus_zn), inv(1.0 - mul(std::conj(m.z), p.w[k])));
+        c2 = 0.5 * (g1 + g2);
+        diff = g1 - g2;
+      } else {
+        const Split zw = smul(m.z2, wk);
+        const Pair d_re = Pair{1.0, 1.0} - zw.re, d_im = -zw.im;
+        const Pair nrm = d_re * d_re + d_im * d_im;
+        const Split g12 = smul(m.one_minus_zn2, {d_re / nrm, -d_im / nrm});
+        c2 = half_sum(g12);
+        diff = cd(g12.re[0] - g12.re[1], g12.im[0] - g12.im[1]);
+      }
       const cd c3(-0.5 * diff.imag(), 0.5 * diff.real());
       jre[2 * j] = c2.real();
       jim[2 * j] = c2.imag();
@@ -417,6 +484,7 @@ void linear_normal_equations(const Problem& p, const SmallVec& x, SmallMat& a, S
 }
 
 double normal_equations(const Problem& p, const SmallVec& x, SmallMat* A, SmallVec* g) {
+  if (p.reference) return normal_equations_n<0>(p, x, A, g);
   switch (p.params()) {
     case 6: return normal_equations_n<6>(p, x, A, g);
     case 8: return normal_equations_n<8>(p, x, A, g);
@@ -495,6 +563,7 @@ struct SpectralModeFitter::Impl {
   fftw_plan plan = nullptr;
   std::vector<double> tw;  // e^{-2 pi i m / N}, interleaved re, im (Goertzel bins)
   Problem p;               // per-fit bins and model, storage reused
+  bool reference = false;  // use_reference_kernels
 
   // DFT bins k_lo .. k_lo + count - 1 of x[0..n) into out[k] (the Goertzel bins for few of them).
   void evaluate_bins(const double* x, std::size_t k_lo, std::size_t count);
@@ -572,6 +641,8 @@ void SpectralModeFitter::dft_bins(std::span<const double> segment, std::size_t k
   for (std::size_t i = 0; i < bins.size(); ++i) bins[i] = cd(im.out[k_lo + i][0], im.out[k_lo + i][1]);
 }
 
+void SpectralModeFitter::use_reference_kernels(bool on) { impl_->reference = on; }
+
 MlFitResult SpectralModeFitter::fit(std::span<const double> segment,
                                     std::span<const ModeGuess> guesses, const MlFitOptions& options) {
   MlFitResult result;
@@ -612,6 +683,7 @@ void SpectralModeFitter::fit(std::span<const double> segment, std::span<const Mo
   p.n_samples = static_cast<double>(im.n);
   p.modes = static_cast<int>(guesses.size());
   p.residual_terms = options.residual_terms;
+  p.reference = im.reference;
   p.data.clear();
   p.w.clear();
   p.u.clear();

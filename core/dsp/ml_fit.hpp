@@ -71,6 +71,11 @@ class SpectralModeFitter {
   /// Allocates nothing. (Tests compare the evaluations with a reference.)
   void dft_bins(std::span<const double> segment, std::size_t k_lo, std::span<std::complex<double>> bins);
 
+  /// on: this fitter's fits evaluate the model and the normal equations by the plain reference
+  /// kernels (scalar complex arithmetic one term at a time, run-time-size loops) instead of the SSE2
+  /// pair kernels; the results are the same bit for bit (tests compare).
+  void use_reference_kernels(bool on);
+
  private:
   struct Impl;
   std::unique_ptr<Impl> impl_;
