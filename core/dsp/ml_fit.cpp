@@ -75,36 +75,47 @@ struct Problem {
     cd one_minus_zn, zn1, c_dz_df, c_dz_du;  // 1 - z^N, z^(N-1), C dz/df, C dz/du
     // (a, conj a) of z, 1 - z^N, C, N z^(N-1), C dz/df, C dz/du for the per-bin Split arithmetic
     Split z2, one_minus_zn2, c2, n_zn1_2, c_dz_df2, c_dz_du2;
+    // The f and ln zeta the members above except the C terms were computed for (valid: at all).
+    double key_f = 0.0, key_ln_zeta = 0.0;
+    bool valid = false;
   };
   mutable std::vector<ModeState> states;  // one per mode, filled by for_each_bin
 
+  // Mode j's state at x into m. Everything but the C terms depends only on f and ln zeta (an exp and
+  // three complex exps): m keeps those from its previous update when f and ln zeta are bit for bit
+  // the same (the start's linear pass and the first LM evaluation: one set of exps per fit fewer).
   template <typename V>
-  ModeState mode_state(const V& x, int j) const {
+  void update_mode_state(ModeState& m, const V& x, int j) const {
     const double f = x[kPerMode * j];
-    const double zeta = std::exp(x[kPerMode * j + 1]);
-    const double omega = kTwoPi * f;
-    const double root = std::sqrt(std::max(1.0 - zeta * zeta, 1e-12));
-    const double sigma = zeta * omega / root;
-    ModeState m;
-    const cd exponent(-sigma / fs, omega / fs);
-    m.z = std::exp(exponent);
-    m.zn = std::exp(n_samples * exponent);
-    const double dsigma_df = kTwoPi * zeta / root;
-    const double dsigma_du = zeta * omega / (root * root * root);  // zeta * d sigma / d zeta
-    m.dz_df = m.z * cd(-dsigma_df, kTwoPi) / fs;
-    m.dz_du = m.z * cd(-dsigma_du, 0.0) / fs;
+    const double ln_zeta = x[kPerMode * j + 1];
+    if (reference || !(m.valid && std::memcmp(&f, &m.key_f, sizeof f) == 0 &&
+                       std::memcmp(&ln_zeta, &m.key_ln_zeta, sizeof ln_zeta) == 0)) {
+      const double zeta = std::exp(ln_zeta);
+      const double omega = kTwoPi * f;
+      const double root = std::sqrt(std::max(1.0 - zeta * zeta, 1e-12));
+      const double sigma = zeta * omega / root;
+      const cd exponent(-sigma / fs, omega / fs);
+      m.z = std::exp(exponent);
+      m.zn = std::exp(n_samples * exponent);
+      const double dsigma_df = kTwoPi * zeta / root;
+      const double dsigma_du = zeta * omega / (root * root * root);  // zeta * d sigma / d zeta
+      m.dz_df = m.z * cd(-dsigma_df, kTwoPi) / fs;
+      m.dz_du = m.z * cd(-dsigma_du, 0.0) / fs;
+      m.one_minus_zn = 1.0 - m.zn;
+      m.zn1 = std::exp((n_samples - 1.0) * exponent);
+      m.z2 = with_conj(m.z);
+      m.one_minus_zn2 = with_conj(m.one_minus_zn);
+      m.n_zn1_2 = with_conj(n_samples * m.zn1);  // n_samples * conj(zn1) = conj(n_samples * zn1) exactly
+      m.key_f = f;
+      m.key_ln_zeta = ln_zeta;
+      m.valid = true;
+    }
     m.c = cd(x[kPerMode * j + 2], x[kPerMode * j + 3]);
-    m.one_minus_zn = 1.0 - m.zn;
-    m.zn1 = std::exp((n_samples - 1.0) * exponent);
     m.c_dz_df = m.c * m.dz_df;
     m.c_dz_du = m.c * m.dz_du;
-    m.z2 = with_conj(m.z);
-    m.one_minus_zn2 = with_conj(m.one_minus_zn);
     m.c2 = with_conj(m.c);
-    m.n_zn1_2 = with_conj(n_samples * m.zn1);  // n_samples * conj(zn1) = conj(n_samples * zn1) exactly
     m.c_dz_df2 = with_conj(m.c_dz_df);
     m.c_dz_du2 = with_conj(m.c_dz_du);
-    return m;
   }
 
   // Mode m's term of X_model_k, w = e^{-2 pi i k / N}, and when col != nullptr its four Jacobian
@@ -155,7 +166,7 @@ struct Problem {
   template <typename V, typename Sink>
   void for_each_bin(const V& x, cd* jrow, Sink&& sink) const {
     states.resize(static_cast<std::size_t>(modes));
-    for (int j = 0; j < modes; ++j) states[static_cast<std::size_t>(j)] = mode_state(x, j);
+    for (int j = 0; j < modes; ++j) update_mode_state(states[static_cast<std::size_t>(j)], x, j);
     const int lin0 = kPerMode * modes;
     for (std::size_t k = 0; k < data.size(); ++k) {
       cd out(0.0, 0.0);
@@ -476,7 +487,7 @@ void linear_normal_equations_n(const Problem& p, const SmallVec& x, SmallMat& a,
   alignas(16) double jre[kMaxSmall], jim[kMaxSmall];
   NormalSums<N> sums;
   p.states.resize(static_cast<std::size_t>(p.modes));
-  for (int j = 0; j < p.modes; ++j) p.states[static_cast<std::size_t>(j)] = p.mode_state(x, j);
+  for (int j = 0; j < p.modes; ++j) p.update_mode_state(p.states[static_cast<std::size_t>(j)], x, j);
   for (std::size_t k = 0; k < p.data.size(); ++k) {
     const Split wk = both(p.w[k]);
     for (int j = 0; j < p.modes; ++j) {
@@ -724,6 +735,7 @@ void SpectralModeFitter::fit(std::span<const double> segment, std::span<const Mo
   p.residual_terms = options.residual_terms;
   p.reference = im.reference;
   p.data.clear();
+  p.states.clear();  // no mode state carries over from the previous fit
   p.w.clear();
   p.u.clear();
   p.basis.clear();

@@ -72,8 +72,8 @@ class SpectralModeFitter {
   void dft_bins(std::span<const double> segment, std::size_t k_lo, std::span<std::complex<double>> bins);
 
   /// on: this fitter's fits evaluate the model and the normal equations by the plain reference
-  /// kernels (scalar complex arithmetic one term at a time, run-time-size loops) instead of the SSE2
-  /// pair kernels; the results are the same bit for bit (tests compare).
+  /// kernels (scalar complex arithmetic one term at a time, run-time-size loops, no reuse of mode
+  /// states) instead of the SSE2 pair kernels; the results are the same bit for bit (tests compare).
   void use_reference_kernels(bool on);
 
  private:
