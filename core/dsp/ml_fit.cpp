@@ -407,9 +407,8 @@ bool cholesky_solve(const SmallMat& m, int n, const double* b, double* y) {
 // Sums over the bins of Re(conj(J_a) J_b) (upper triangle) and Re(conj(J_a) r), bin by bin in bin
 // order. N > 0 (even): the column count as a compile-time constant, the sums in SSE2 pairs of columns
 // (b, b + 1) with each lane's operations the scalar ones (the pair holding the diagonal of an odd row
-// also forms the entry left of it, unused); measured 3.54 -> 3.44 us per pipeline fit against the
-// scalar loops.
-// N = 0: scalar, n at run time. The same values either way.
+// also forms the entry left of it, unused): measured 3.54 -> 3.44 us per pipeline fit against the
+// scalar loops. N = 0: scalar, n at run time. The same values either way.
 template <int N>
 struct NormalSums {
   static_assert(N % 2 == 0);
