@@ -14,6 +14,7 @@
 // one on the normal equations with Marquardt scaling, for larger problems Eigen's MINPACK port (QR).
 #pragma once
 
+#include <complex>
 #include <cstddef>
 #include <memory>
 #include <span>
@@ -63,6 +64,17 @@ class SpectralModeFitter {
   /// allocates nothing: real-time callers (the impact analyzer) use this.
   void fit(std::span<const double> segment, std::span<const ModeGuess> guesses, const MlFitOptions& options,
            MlFitResult& result);
+
+  /// The DFT bins X_k = sum_n x[n] e^{-2 pi i k n / N}, k = k_lo .. k_lo + bins.size() - 1, of `segment`
+  /// (size == segment_samples), evaluated exactly as fit() evaluates a band of that many bins (Goertzel
+  /// recursions for few bins, else the FFT). Requires 1 <= k_lo and k_lo + bins.size() - 1 <= (N - 1) / 2.
+  /// Allocates nothing. (Tests compare the evaluations with a reference.)
+  void dft_bins(std::span<const double> segment, std::size_t k_lo, std::span<std::complex<double>> bins);
+
+  /// on: this fitter's fits evaluate the model and the normal equations by the plain reference
+  /// kernels (scalar complex arithmetic one term at a time, run-time-size loops, no reuse of mode
+  /// states) instead of the SSE2 pair kernels; the results are the same bit for bit (tests compare).
+  void use_reference_kernels(bool on);
 
  private:
   struct Impl;

@@ -1,0 +1,187 @@
+// SpectralModeFitter internals against slow references: the DFT bins its fits use (Goertzel recursions,
+// several bins per pass) against a one-bin-at-a-time evaluation of the same arithmetic (exactly) and a
+// direct DFT in long double (to the recursion's round-off); fits by the fast kernels (model terms in
+// SSE2 pairs, compile-time-size normal equations, reused mode states) against fits by the plain
+// reference kernels (exactly). The fits' accuracy is tested in test_damping.cpp.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <complex>
+#include <cstring>
+#include <numbers>
+#include <random>
+#include <string>
+#include <vector>
+
+#include "core/dsp/ml_fit.hpp"
+#include "core/dsp/synthetic.hpp"
+
+using namespace ridgewatch::dsp;
+
+namespace {
+
+using cd = std::complex<double>;
+
+// The fitter's twiddle table entry e^{-2 pi i m / N}, computed as the fitter computes it.
+cd twiddle(std::size_t m, std::size_t n) {
+  return std::polar(1.0, -2.0 * std::numbers::pi * static_cast<double>(m % n) / static_cast<double>(n));
+}
+
+// The polyphase Goertzel value of bin k (ml_fit.cpp: 8 phases, zero-padded last row, read-out and
+// combination in the same operations and order), one bin and one phase at a time in scalars.
+cd reference_bin(const std::vector<double>& x, std::size_t k) {
+  constexpr std::size_t kPhases = 8;
+  const std::size_t n = x.size();
+  const std::size_t m_count = (n + kPhases - 1) / kPhases;
+  const double coef = 2.0 * twiddle(k * kPhases, n).real();
+  double s1[kPhases], s2[kPhases];
+  for (std::size_t j = 0; j < kPhases; ++j) {
+    double a = 0.0, b = 0.0;  // s[m-1], s[m-2]
+    for (std::size_t m = 0; m < m_count; ++m) {
+      const std::size_t i = kPhases * m + j;
+      const double xv = i < n ? x[i] : 0.0;
+      const double s0 = (xv - b) + coef * a;
+      b = a;
+      a = s0;
+    }
+    s1[j] = a;
+    s2[j] = b;
+  }
+  const cd e = twiddle(k * kPhases, n);
+  const cd rot = twiddle(((k * kPhases) % n) * (m_count - 1), n);
+  cd acc(0.0, 0.0);
+  for (std::size_t j = 0; j < kPhases; ++j) acc += (s1[j] - e * s2[j]) * twiddle(k * j, n);
+  acc *= rot;
+  return acc;
+}
+
+bool same_bits(cd a, cd b) { return std::memcmp(&a, &b, sizeof a) == 0; }
+bool same_bits(double a, double b) { return std::memcmp(&a, &b, sizeof a) == 0; }
+
+// Every reported number of two fits, bit for bit.
+void expect_same_fit(const MlFitResult& a, const MlFitResult& b, const std::string& what) {
+  EXPECT_TRUE(same_bits(a.noise_sd, b.noise_sd)) << what << ": noise_sd " << a.noise_sd << " vs " << b.noise_sd;
+  EXPECT_EQ(a.converged, b.converged) << what;
+  EXPECT_EQ(a.bins, b.bins) << what;
+  ASSERT_EQ(a.modes.size(), b.modes.size()) << what;
+  for (std::size_t j = 0; j < a.modes.size(); ++j) {
+    const DampingEstimate& x = a.modes[j];
+    const DampingEstimate& y = b.modes[j];
+    EXPECT_EQ(x.status, y.status) << what << " mode " << j;
+    const double xs[] = {x.f_hz, x.zeta, x.f_sd_hz, x.zeta_sd, x.zeta_ci95_lo, x.zeta_ci95_hi, x.amplitude};
+    const double ys[] = {y.f_hz, y.zeta, y.f_sd_hz, y.zeta_sd, y.zeta_ci95_lo, y.zeta_ci95_hi, y.amplitude};
+    for (std::size_t i = 0; i < std::size(xs); ++i)
+      EXPECT_TRUE(same_bits(xs[i], ys[i])) << what << " mode " << j << " field " << i << ": " << xs[i] << " vs " << ys[i];
+  }
+}
+
+}  // namespace
+
+// Segment lengths with and without a partial last row of 8 samples and with an odd and an even number
+// of full rows (the recursion runs its steps in pairs), every bin count up to 9 (bins run two per pass
+// plus a single one for odd counts), at several band positions.
+TEST(MlFitBins, GoertzelBinsEqualOneBinReference) {
+  std::mt19937_64 rng(7);
+  std::normal_distribution<double> n01(0.0, 1.0);
+  for (const std::size_t n : {64u, 72u, 75u, 100u, 883u, 1766u}) {
+    std::vector<double> x(n);
+    for (std::size_t i = 0; i < n; ++i)
+      x[i] = std::exp(-3.0 * static_cast<double>(i) / static_cast<double>(n)) *
+                 std::sin(0.7 * static_cast<double>(i)) +
+             0.1 * n01(rng);
+    SpectralModeFitter fitter(n, 25600.0, 1);  // max_bins 1: no FFT plan, every band by Goertzel
+    for (std::size_t count = 1; count <= 9; ++count) {
+      for (const std::size_t k_lo : {std::size_t{1}, std::size_t{5}, (n - 1) / 2 - count + 1}) {
+        std::vector<cd> bins(count);
+        fitter.dft_bins(x, k_lo, bins);
+        for (std::size_t i = 0; i < count; ++i) {
+          const cd want = reference_bin(x, k_lo + i);
+          EXPECT_TRUE(same_bits(bins[i], want))
+              << "n " << n << " count " << count << " k " << k_lo + i << ": " << bins[i] << " vs " << want;
+        }
+      }
+    }
+  }
+}
+
+// The same bins against a direct DFT in long double: the recursion's round-off (~M^2 eps / sin(t),
+// M = N / 8) stays far below 1e-11 of sum |x|.
+TEST(MlFitBins, GoertzelBinsMatchDirectDft) {
+  const std::size_t n = 883;
+  std::vector<double> x(n);
+  std::mt19937_64 rng(3);
+  std::normal_distribution<double> n01(0.0, 1.0);
+  double l1 = 0.0;
+  for (double& v : x) {
+    v = n01(rng);
+    l1 += std::abs(v);
+  }
+  SpectralModeFitter fitter(n, 25600.0, 1);
+  const std::size_t k_lo = 25, count = 7;
+  std::vector<cd> bins(count);
+  fitter.dft_bins(x, k_lo, bins);
+  for (std::size_t i = 0; i < count; ++i) {
+    const std::size_t k = k_lo + i;
+    long double re = 0, im = 0;
+    for (std::size_t m = 0; m < n; ++m) {
+      const long double t = -2.0L * std::numbers::pi_v<long double> * static_cast<long double>((k * m) % n) /
+                            static_cast<long double>(n);
+      re += x[m] * std::cos(t);
+      im += x[m] * std::sin(t);
+    }
+    EXPECT_LT(std::abs(bins[i] - cd(static_cast<double>(re), static_cast<double>(im))), 1e-11 * l1) << k;
+  }
+}
+
+TEST(MlFitBins, RejectsBinsOutsideTheHalfSpectrum) {
+  SpectralModeFitter fitter(100, 1000.0, 1);
+  std::vector<double> x(100, 0.0), wrong(99, 0.0);
+  std::vector<cd> bins(3);
+  EXPECT_THROW(fitter.dft_bins(wrong, 1, bins), std::invalid_argument);
+  EXPECT_THROW(fitter.dft_bins(x, 0, bins), std::invalid_argument);
+  EXPECT_THROW(fitter.dft_bins(x, 48, bins), std::invalid_argument);  // 50 > 49
+  EXPECT_NO_THROW(fitter.dft_bins(x, 47, bins));
+}
+
+// Fits by the fast kernels equal fits by the reference kernels (SpectralModeFitter::use_reference_kernels)
+// bit for bit: the pipeline's one mode with one and two residual terms (6 and 8 parameters: the
+// compile-time-size paths), none (4), two modes (12: run-time size), and three modes on many bins (16:
+// the general MINPACK path, FFT bins), each on noisy segments from several seeds and misplaced starts.
+TEST(MlFitKernels, FastKernelsEqualReferenceKernels) {
+  struct Case {
+    std::size_t n;
+    double fs;
+    std::vector<DampedComponent> truth;
+    std::vector<ModeGuess> guesses;
+    double f_lo, f_hi;
+    int residual_terms;
+  };
+  const std::vector<Case> cases = {
+      {883, 25600.0, {{1.0, 860.0, 0.024, 0.3}, {0.5, 1500.0, 0.01, 1.0}}, {{851.0, 0.02}}, 757.0, 963.0, 1},
+      {883, 25600.0, {{1.0, 860.0, 0.024, 0.3}, {0.5, 1500.0, 0.01, 1.0}}, {{866.0, 0.03}}, 722.0, 998.0, 2},
+      {883, 25600.0, {{1.0, 860.0, 0.024, 0.3}}, {{855.0, 0.02}}, 757.0, 963.0, 0},
+      {1766, 25600.0, {{1.0, 800.0, 0.02, 0.3}, {0.7, 1000.0, 0.015, 2.0}}, {{795.0, 0.025}, {1004.0, 0.012}},
+       650.0, 1150.0, 2},
+      {4000, 10000.0, {{1.0, 250.0, 0.02, 0.0}, {0.8, 500.0, 0.045, 1.0}, {0.5, 1250.0, 0.005, 2.0}},
+       {{248.0, 0.025}, {505.0, 0.04}, {1251.0, 0.006}}, 100.0, 1500.0, 2},
+  };
+  for (std::size_t c = 0; c < cases.size(); ++c) {
+    const Case& cs = cases[c];
+    SpectralModeFitter fast(cs.n, cs.fs);
+    SpectralModeFitter reference(cs.n, cs.fs);
+    reference.use_reference_kernels(true);
+    MlFitOptions o;
+    o.f_lo_hz = cs.f_lo;
+    o.f_hi_hz = cs.f_hi;
+    o.residual_terms = cs.residual_terms;
+    for (std::uint64_t seed = 1; seed <= 6; ++seed) {
+      auto x = damped_sum(cs.truth, cs.fs, cs.n);
+      add_white_noise(x, 10.0 + 5.0 * static_cast<double>(seed), seed);
+      const MlFitResult a = fast.fit(x, cs.guesses, o);
+      const MlFitResult b = reference.fit(x, cs.guesses, o);
+      ASSERT_FALSE(a.modes.empty());
+      EXPECT_EQ(a.modes[0].status, EstimateStatus::ok) << "case " << c << " seed " << seed;
+      expect_same_fit(a, b, "case " + std::to_string(c) + " seed " + std::to_string(seed));
+    }
+  }
+}
