@@ -549,19 +549,31 @@ TEST(StreamProcessor, ProcessAllocatesNothingAfterWarmUp) {
   EXPECT_EQ(v[999], 1.0);
 }
 
+// The synthetic rig stream at 51.2 kHz (the analyzer's half-rate path) with a 550 Hz line at 2 %,
+// and the default pipeline configuration at that rate.
+struct Stream51k {
+  Synthetic s;
+  PipelineConfig cfg;
+};
+Stream51k stream_51k(double seconds) {
+  SynthOptions o;
+  o.fs = 51200.0;
+  o.seconds = seconds;
+  o.line_550 = 0.02;
+  Stream51k out{make_signal(o), default_config()};
+  out.cfg.sample_rate_hz = o.fs;
+  return out;
+}
+
 // The half-rate path through the StreamProcessor at 51.2 kHz: events bit-identical for any block
 // split (the copy is made per window), allocation-free after warm-up, and accurate: 1 % noise at twice
 // the rate of OkWithAccurateEstimate halves the in-band noise density, so one event's ML sd is
 // 1 % / sqrt(2) = 0.7 %; the median of the ok events is held to 3 % (4 sd of a single event).
 TEST(StreamProcessor, HalfRatePathAt51kHz) {
-  SynthOptions o;
-  o.fs = 51200.0;
-  o.seconds = 0.6;
-  o.line_550 = 0.02;
-  const Synthetic s = make_signal(o);
-  PipelineConfig cfg = default_config();
-  cfg.sample_rate_hz = o.fs;
-  ASSERT_EQ(ImpactAnalyzer(cfg.analyzer, o.fs).input_decimation(), 2u);
+  const Stream51k stream = stream_51k(0.6);
+  const Synthetic& s = stream.s;
+  const PipelineConfig& cfg = stream.cfg;
+  ASSERT_EQ(ImpactAnalyzer(cfg.analyzer, cfg.sample_rate_hz).input_decimation(), 2u);
   const auto a = run(cfg, s.x, 4096);
   ASSERT_GE(a.size(), s.impacts.size() - 1);
   std::vector<double> z;
@@ -603,13 +615,9 @@ TEST(StreamProcessor, HalfRatePathAt51kHz) {
 // wraps) or starts ~150-250 samples after it (one piece); the other windows land at other ring
 // positions than with offset 0. The analysis results are bit-identical; only the indices move.
 TEST(StreamProcessor, EventsDoNotDependOnTheRingPosition) {
-  SynthOptions o;
-  o.fs = 51200.0;
-  o.seconds = 0.4;
-  o.line_550 = 0.02;
-  const Synthetic s = make_signal(o);
-  PipelineConfig cfg = default_config();
-  cfg.sample_rate_hz = o.fs;
+  const Stream51k stream = stream_51k(0.4);
+  const Synthetic& s = stream.s;
+  const PipelineConfig& cfg = stream.cfg;
   auto run_at = [&](std::uint64_t offset) {
     StreamProcessor p(cfg);
     std::vector<ImpactEvent> events;
