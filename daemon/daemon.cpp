@@ -133,6 +133,7 @@ struct Daemon::Impl {
   void make_processor() {
     pipeline::PipelineConfig p = cfg.pipeline;
     p.sample_rate_hz = fs;
+    cli::resolve_format_defaults(p, source->info().full_scale);  // clip_level from the sample format
     try {
       pipeline::validate(p);
     } catch (const std::invalid_argument& e) {

@@ -282,7 +282,13 @@ TEST(StreamProcessor, GapCutsTheImpactInProgress) {
 
 // The analyzer on hand-made windows: one status per cause.
 struct AnalyzerFixture : ::testing::Test {
-  PipelineConfig cfg = default_config();
+  // One analyzer alone analyses windows of up to its window_s (the StreamProcessor keeps a ladder of
+  // maxima and picks the one for each window): 35 ms, the length these hand-made windows are built for.
+  PipelineConfig cfg = [] {
+    PipelineConfig c = default_config();
+    c.analyzer.window_s = 0.035;
+    return c;
+  }();
   std::vector<double> window(double amplitude, double noise_sd, unsigned seed = 5) {
     ImpactAnalyzer a(cfg.analyzer, kFs);
     std::vector<double> x(a.max_samples(), 0.0);
@@ -434,7 +440,8 @@ TEST(ImpactAnalyzerHalfRate, DecisionFollowsTheRate) {
 // at or after onset + ceil(0.5 ms fs) (half rate: the first copy sample 2m there); at half rate it
 // carries the 1/H(f) compensation (without it: -0.28 % at 51.2 kHz), checked to 1e-5. The ML segment covers the window after the margin to within 3 samples.
 TEST(ImpactAnalyzerHalfRate, NoiseFreeDecayIsExactOnBothPaths) {
-  const PipelineConfig cfg = default_config();
+  PipelineConfig cfg = default_config();
+  cfg.analyzer.window_s = 0.035;  // one analyzer's window (segments short enough for exact lengths)
   for (const double fs : {51200.0, 25600.0, 8000.0}) {
     ImpactAnalyzer a(cfg.analyzer, fs);
     EXPECT_EQ(a.input_decimation(), fs > 30000.0 ? 2u : 1u);
