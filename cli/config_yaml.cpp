@@ -60,6 +60,7 @@ void walk(RidgewatchConfig& c, V& v) {
       v.num("window_s", a.window_s);
       v.method("method", a.method);
       v.num("min_snr_db", a.min_snr_db);
+      v.num("max_ci_ratio", a.max_ci_ratio);
       v.nullable("clip_level", a.clip_level);  // null: from the source format (resolve_format_defaults)
       v.num("ml_band_rel", a.ml_band_rel);
     });

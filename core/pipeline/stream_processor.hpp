@@ -56,6 +56,9 @@ struct ImpactAnalyzerConfig {
   double window_s = 1.0;
   dsp::DampingMethod method = dsp::DampingMethod::ml;
   double min_snr_db = 20.0;      ///< below: status low_snr
+  /// An ok event's 95 % interval spans at most this ratio hi / lo (1.25: about +-11 %); wider: low_snr
+  /// (ok promises a usable number). > 1.
+  double max_ci_ratio = 1.25;
   /// |x| >= clip_level inside the window: clipped (signal units; 0.999 suits data scaled to a full
   /// scale of 1.0). NaN: no clipping check (float data in physical units have no converter limit).
   /// The configuration file's default, null, takes it from the source's format (cli:
