@@ -193,7 +193,8 @@ ImpactAnalyzer::ImpactAnalyzer(const ImpactAnalyzerConfig& cfg, double fs) {
       const double half = std::max(ml_band_rel_ * rows_hz_.back(), 3.0 * bin_hz);
       const std::size_t top = (len - 1) / 2;
       const std::size_t count = std::min(static_cast<std::size_t>(std::floor(2.0 * half / bin_hz)) + 2, top);
-      if (count > len) continue;
+      // Only the FFT path needs it (the Goertzel recursions allocate nothing and plan nothing).
+      if (count > len || static_cast<double>(count) <= 2.0 * std::log2(static_cast<double>(len))) continue;
       if (count == 0) continue;
       seg.assign(len, 0.0);
       bins.assign(count, {});
