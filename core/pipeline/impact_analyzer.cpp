@@ -247,10 +247,9 @@ ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
   const bool clipped = !std::isnan(clip_) && peak >= clip_;  // NaN: no clip level (float data)
   const double peak_sq = peak * peak;
   auto finish = [&](ImpactStatus computed) {
-    // Data problems first: they explain any estimate failure. Clipping before spikes: the corners of
-    // a clipped peak can pass the spike test, and the clipping is the cause.
-    if (clipped) ev.status = ImpactStatus::clipped;
-    else if (win.spike) ev.status = ImpactStatus::spike;
+    // Data problems first: they explain any estimate failure.
+    if (win.spike) ev.status = ImpactStatus::spike;
+    else if (clipped) ev.status = ImpactStatus::clipped;
     else if (win.end == WindowEnd::gap) ev.status = ImpactStatus::window_cut;
     else ev.status = computed;
     return ev;
