@@ -276,8 +276,8 @@ struct StreamProcessor::Impl {
   // powers are final (wait_after samples later, or at the segment end: `final_data`). The decay has
   // reached the floor at the end of the first step whose mean trigger-band power is at most twice the
   // noise floor between impacts (the in-band power of the pre-trigger samples, lines included), or
-  // 40 dB below the power at the envelope's peak (the rest of a decay adds little: the ML fit's
-  // information about sigma from the last 40 dB is ~1 % of the whole).
+  // 40 dB below the power at the envelope's peak (what follows adds little: the Fisher information
+  // about sigma in a decay's power beyond u = ln 1e4 = 9.2 is e^-u (1 + u + u^2 / 2) = 0.5 % of it).
   void follow_decay(Pending& p, std::uint64_t end, bool final_data) {
     if (p.decay_end != 0 || p.exhausted) return;
     const std::uint64_t o = p.onset;
