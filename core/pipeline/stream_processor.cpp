@@ -374,6 +374,7 @@ struct StreamProcessor::Impl {
     win.spike = detector.spike_in(w0, end);
     win.onset_index = o;
     ImpactEvent ev = analyzer_for(static_cast<std::size_t>(end - o)).analyze(win);
+    ev.window_end_index = end;
     ev.alarm = trend_monitor.update(ev);
     events.push_back(ev);
   }
