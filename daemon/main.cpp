@@ -107,18 +107,18 @@ int run(const std::vector<std::string>& argv) {
   };
   cli::RidgewatchConfig config = config_path ? cli::load_config_file(*config_path) : cli::default_config();
   overrides(config);
-  if (config.source.type == "replay" && config.source.replay.path.empty())
-    throw cli::UsageError("no input: set source.replay.path in the configuration or pass --replay FILE");
-  if (const auto lvl = args.value("--log-level");
-      lvl && *lvl != "trace" && *lvl != "debug" && *lvl != "info" && *lvl != "warn" && *lvl != "error")
-    throw cli::UsageError("--log-level: '" + *lvl + "' is not one of trace, debug, info, warn, error");
-
   if (args.has("--test-relays")) {
     if (!config.gpio.enabled) throw cli::UsageError("--test-relays: gpio.enabled is false in the configuration");
     ridgewatch::daemon::GpioLines lines = ridgewatch::daemon::open_gpio(config.gpio);  // GpioError: exit 3
     return ridgewatch::daemon::test_relays(lines, std::cin, std::cout, args.has("--yes"), std::chrono::seconds(2));
   }
   if (args.has("--yes")) throw cli::UsageError("--yes goes with --test-relays");
+  if (config.source.type == "replay" && config.source.replay.path.empty())
+    throw cli::UsageError("no input: set source.replay.path in the configuration or pass --replay FILE");
+  if (const auto lvl = args.value("--log-level");
+      lvl && *lvl != "trace" && *lvl != "debug" && *lvl != "info" && *lvl != "warn" && *lvl != "error")
+    throw cli::UsageError("--log-level: '" + *lvl + "' is not one of trace, debug, info, warn, error");
+
 
   setup_logging(config.logging.level);
   install_signal_handlers();

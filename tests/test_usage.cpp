@@ -4,6 +4,8 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <filesystem>
+#include <fstream>
 #include <map>
 #include <set>
 #include <sstream>
@@ -144,4 +146,50 @@ TEST(Usage, ArgsReportsItsFlagsOnHelp) {
   }
   const cli::Args own({"--help"}, {}, {"--help"});
   EXPECT_TRUE(own.has("--help"));
+}
+
+namespace {
+
+ridgewatch::test::CliResult run_daemon(const std::vector<std::string>& args, const std::string& stdin_text = "") {
+  const auto dir = std::filesystem::temp_directory_path();
+  const std::string tag = std::to_string(::getpid());
+  const auto in = dir / ("ridgewatchd-usage-" + tag + ".in");
+  const auto out = dir / ("ridgewatchd-usage-" + tag + ".out");
+  const auto err = dir / ("ridgewatchd-usage-" + tag + ".err");
+  std::ofstream(in) << stdin_text;
+  std::string cmd = ridgewatch::test::shell_quote(RIDGEWATCHD_PATH);
+  for (const auto& a : args) cmd += " " + ridgewatch::test::shell_quote(a);
+  cmd += " <" + in.string() + " >" + out.string() + " 2>" + err.string();
+  const int status = std::system(cmd.c_str());
+  ridgewatch::test::CliResult r;
+  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  r.out = ridgewatch::test::slurp(out);
+  r.err = ridgewatch::test::slurp(err);
+  for (const auto& p : {in, out, err}) std::filesystem::remove(p);
+  return r;
+}
+
+}  // namespace
+
+// --list-devices works without any sound card or GPIO chip (it says so); --test-relays needs the gpio
+// section; a missing ALSA device is the daemon's own one-line message, no raw "ALSA lib ..." line.
+TEST(DaemonHelpers, ListDevicesTestRelaysAndCleanAlsaErrors) {
+  const auto list = run_daemon({"--list-devices"});
+  EXPECT_EQ(list.exit_code, 0) << list.err;
+  EXPECT_NE(list.out.find("ALSA capture devices (source.alsa.device):"), std::string::npos) << list.out;
+  EXPECT_NE(list.out.find("GPIO chips and lines (gpio section):"), std::string::npos) << list.out;
+  EXPECT_EQ(list.err.find("ALSA lib"), std::string::npos) << list.err;
+
+  const auto relays = run_daemon({"--test-relays"}, "yes\n");
+  EXPECT_EQ(relays.exit_code, 2);
+  EXPECT_NE(relays.err.find("--test-relays: gpio.enabled is false"), std::string::npos) << relays.err;
+  EXPECT_EQ(run_daemon({"--yes"}).exit_code, 2);
+
+  const auto cfg = std::filesystem::temp_directory_path() / ("ridgewatchd-usage-alsa-" + std::to_string(::getpid()) + ".yaml");
+  std::ofstream(cfg) << "source:\n  type: alsa\n  alsa:\n    device: \"plughw:CARD=NoSuchCard,DEV=0\"\n";
+  const auto alsa = run_daemon({"--config", cfg.string()});
+  std::filesystem::remove(cfg);
+  EXPECT_EQ(alsa.exit_code, 3) << alsa.err;
+  EXPECT_NE(alsa.err.find("alsa plughw:CARD=NoSuchCard,DEV=0: cannot open capture PCM"), std::string::npos) << alsa.err;
+  EXPECT_EQ(alsa.err.find("ALSA lib"), std::string::npos) << alsa.err;
 }
