@@ -3,9 +3,10 @@
 // up without a change here.
 //   - scalars of an object: "key: value" lines (nested objects as "parent.key");
 //   - an array of objects (modes, parameters, steps, the events of analyze): one table, a column per
-//     scalar key (in order of first appearance), a row per element;
+//     scalar key (in order of first appearance; the fields of a nested object as columns of their
+//     own), a row per element;
 //   - an array of arrays of numbers (a correlation matrix): rows of numbers.
-// Numbers: 5 significant digits for keys naming a frequency (…hz…), 4 otherwise, integers as they
+// Numbers: 5 significant digits for keys naming a frequency (…hz…, not …sd…), 4 otherwise, integers as they
 // are; null prints as "-".
 #pragma once
 

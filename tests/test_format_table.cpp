@@ -33,13 +33,32 @@ TEST(FormatTable, NumbersHaveFourSignificantDigitsFiveForFrequencies) {
 }
 
 TEST(FormatTable, JsonLinesBecomeOneTableAndNestedObjectsFlatten) {
-  const std::string lines = "{\"t_s\":0.04,\"zeta\":0.0241234,\"alarm_detail\":{\"cusum_up\":0.5}}\n"
-                            "{\"t_s\":0.08,\"zeta\":0.0239,\"alarm_detail\":{\"cusum_up\":1.25}}\n";
+  const std::string lines = "{\"t_s\":0.04,\"zeta\":0.0241234,\"alarm_detail\":{\"cusum_up\":0.5,\"zeta\":1}}\n"
+                            "{\"t_s\":0.08,\"zeta\":0.0239,\"alarm_detail\":{\"cusum_up\":1.25,\"zeta\":2}}\n";
   EXPECT_EQ(format_table(lines),
-            "t_s   zeta     alarm_detail.cusum_up\n"
-            "0.04  0.02412  0.5\n"
-            "0.08  0.0239   1.25\n");
+            "t_s   zeta     cusum_up  alarm_detail.zeta\n"
+            "0.04  0.02412  0.5       1\n"
+            "0.08  0.0239   1.25      2\n");
   EXPECT_EQ(format_table("not json\n"), "not json\n");
+}
+
+// An object of equal-length arrays (compare's backbone) becomes one table; a matrix stays a matrix.
+TEST(FormatTable, ColumnObjectsAndMatrices) {
+  const std::string doc = R"({"backbone":{"a":[1,2,3,4,5],"measured":{"f_hz":[860.123,null,859.5,860,861]}},)"
+                          R"("correlation":[[1,0.5],[0.5,1]]})";
+  EXPECT_EQ(format_table(doc + "\n"),
+            "\n"
+            "backbone:\n"
+            "  a  measured.f_hz\n"
+            "  1  860.12\n"
+            "  2  -\n"
+            "  3  859.5\n"
+            "  4  860\n"
+            "  5  861\n"
+            "\n"
+            "correlation:\n"
+            "          1       0.5\n"
+            "        0.5         1\n");
 }
 
 // Through the binary: modes --format table has one row per mode of the JSON output, with the same
