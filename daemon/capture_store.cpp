@@ -35,12 +35,6 @@ bool CaptureStore::selected(const pipeline::ImpactEvent& e) const {
   return true;
 }
 
-std::size_t CaptureStore::files() const {
-  std::size_t n = 0;
-  for (const auto& e : entries_) n += static_cast<std::size_t>(e.files);
-  return n;
-}
-
 // Captures left by earlier runs: impact-*.wav / impact-*.json grouped by name, oldest first.
 void CaptureStore::scan() {
   std::error_code ec;
@@ -77,6 +71,7 @@ void CaptureStore::scan() {
   });
   for (auto& f : found) {
     bytes_ += f.entry.bytes;
+    files_ += static_cast<std::size_t>(f.entry.files);
     entries_.push_back(std::move(f.entry));
   }
   enforce_limits();
@@ -86,11 +81,12 @@ void CaptureStore::remove_entry(const Entry& e) {
   std::error_code ec;
   for (const char* ext : {".json", ".wav"}) fs::remove(e.base + ext, ec);
   bytes_ -= std::min(bytes_, e.bytes);
+  files_ -= std::min(files_, static_cast<std::size_t>(e.files));
 }
 
 void CaptureStore::enforce_limits() {
   auto over = [this] {
-    return (config_.max_files > 0 && files() > config_.max_files) || (config_.max_bytes > 0 && bytes_ > config_.max_bytes);
+    return (config_.max_files > 0 && files_ > config_.max_files) || (config_.max_bytes > 0 && bytes_ > config_.max_bytes);
   };
   // The newest capture stays even if it alone exceeds max_bytes (the limit is then one capture).
   while (entries_.size() > 1 && over()) {
@@ -107,6 +103,7 @@ std::string CaptureStore::write(const pipeline::ImpactEvent& e, const std::strin
   if (const auto it = std::find_if(entries_.begin(), entries_.end(), [&](const Entry& x) { return x.base == base; });
       it != entries_.end()) {
     bytes_ -= std::min(bytes_, it->bytes);
+    files_ -= std::min(files_, static_cast<std::size_t>(it->files));
     entries_.erase(it);
   }
   const std::string err = write_capture(config_.dir, e, source, window, window_first_index, sample_rate_hz);
@@ -118,6 +115,7 @@ std::string CaptureStore::write(const pipeline::ImpactEvent& e, const std::strin
   }
   Entry entry{base, size_or_zero(base + ".wav") + size_or_zero(base + ".json"), 2};
   bytes_ += entry.bytes;
+  files_ += 2;
   entries_.push_back(std::move(entry));
   ++written_;
   enforce_limits();

@@ -31,7 +31,7 @@ class CaptureStore {
   std::uint64_t written() const { return written_; }   ///< captures written by this store
   std::uint64_t removed() const { return removed_; }   ///< captures removed to keep the limits
   std::uint64_t failed() const { return failed_; }     ///< captures that could not be written
-  std::size_t files() const;                           ///< capture files now in the directory
+  std::size_t files() const { return files_; }         ///< capture files now in the directory
   std::uint64_t bytes() const { return bytes_; }       ///< their total size
 
  private:
@@ -47,6 +47,7 @@ class CaptureStore {
   cli::CaptureConfig config_;
   std::deque<Entry> entries_;  ///< oldest first
   std::uint64_t bytes_ = 0, written_ = 0, removed_ = 0, failed_ = 0;
+  std::size_t files_ = 0;  // sum of entries_[i].files
 };
 
 }  // namespace ridgewatch::daemon

@@ -77,8 +77,12 @@ in_root grep -q '^ExecStart=/usr/sbin/ridgewatchd --config /etc/ridgewatch/ridge
   /usr/lib/systemd/system/ridgewatchd.service || fail "unit ExecStart"
 in_root /usr/bin/ridgewatch --version | grep -q '^ridgewatch ' || fail "ridgewatch --version"
 in_root /usr/bin/ridgewatch modes --help | grep -q -- '--min-snr-db' || fail "ridgewatch modes --help"
-in_root /usr/bin/ridgewatch analyze --config /etc/ridgewatch/ridgewatch.yaml \
-  /usr/share/ridgewatch/rigs/paper-rig.yaml >/dev/null 2>&1 && fail "analyze of a YAML file must fail"
+# The installed rig example and configuration work with the installed tools: simulate 0.5 s of the
+# paper rig, analyze it with the installed configuration's pipeline.
+in_root /usr/bin/ridgewatch simulate --rig /usr/share/ridgewatch/rigs/paper-rig.yaml --duration 0.5 --out /tmp/sim \
+  >/dev/null || fail "simulate with the installed rig"
+in_root /usr/bin/ridgewatch analyze --config /etc/ridgewatch/ridgewatch.yaml /tmp/sim.wav | grep -q '"status":"ok"' ||
+  fail "analyze with the installed configuration"
 bash -n "$root/usr/share/bash-completion/completions/ridgewatch" || fail "completion syntax"
 
 echo "== man -l"
