@@ -1,5 +1,6 @@
 #include "cli/usage.hpp"
 
+#include <set>
 #include <sstream>
 
 namespace ridgewatch::cli::usage {
@@ -188,6 +189,12 @@ std::vector<std::string> args_flags(const Command& c, bool valued) {
   for (const auto& f : c.flags)
     if (!f.by_main && f.value.empty() != valued) v.push_back(f.name);
   return v;
+}
+
+Args parse(const std::vector<std::string>& argv, const Command& c) {
+  const auto valued = args_flags(c, true), switches = args_flags(c, false);
+  return Args(argv, std::set<std::string>(valued.begin(), valued.end()),
+              std::set<std::string>(switches.begin(), switches.end()));
 }
 
 std::string command_help(const Command& c, const std::string& program) {

@@ -8,6 +8,8 @@
 #include <string>
 #include <vector>
 
+#include "cli/args.hpp"
+
 namespace ridgewatch::cli::usage {
 
 struct Flag {
@@ -40,6 +42,11 @@ std::string top_help();
 
 /// Names of the flags the command's Args parses (valued and switches), i.e. without by_main flags.
 std::vector<std::string> args_flags(const Command& c, bool valued);
+
+/// The command's Args, with the flags of its table entry: a command parsing its arguments this way
+/// needs one line in the table per flag and nothing else. (The daemon does; the subcommands still
+/// list their flags in their own Args call, and tests/test_usage.cpp checks that the two agree.)
+Args parse(const std::vector<std::string>& argv, const Command& c);
 
 /// Man pages (roff, man(7) macros). `config_yaml` is the documented configuration file (config/ridgewatch.yaml).
 std::string man_ridgewatch(const std::string& version);

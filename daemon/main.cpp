@@ -6,7 +6,6 @@
 #include <chrono>
 #include <cstdlib>
 #include <iostream>
-#include <set>
 #include <string>
 #include <vector>
 
@@ -55,10 +54,7 @@ void setup_logging(const std::string& level) {
 
 int run(const std::vector<std::string>& argv) {
   // The flags come from the usage table (cli/usage.cpp), which also makes --help and the man page.
-  const auto& doc = cli::usage::daemon();
-  const auto valued = cli::usage::args_flags(doc, true), switches = cli::usage::args_flags(doc, false);
-  const cli::Args args(argv, std::set<std::string>(valued.begin(), valued.end()),
-                       std::set<std::string>(switches.begin(), switches.end()));
+  const cli::Args args = cli::usage::parse(argv, cli::usage::daemon());
   if (!args.positional().empty()) throw cli::UsageError("unexpected argument '" + args.positional().front() + "'");
   if (args.has("--version")) {
     std::cout << "ridgewatchd " << RIDGEWATCH_VERSION << "\n";
