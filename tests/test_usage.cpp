@@ -193,3 +193,39 @@ TEST(DaemonHelpers, ListDevicesTestRelaysAndCleanAlsaErrors) {
   EXPECT_NE(alsa.err.find("alsa plughw:CARD=NoSuchCard,DEV=0: cannot open capture PCM"), std::string::npos) << alsa.err;
   EXPECT_EQ(alsa.err.find("ALSA lib"), std::string::npos) << alsa.err;
 }
+
+// The completion script in bash itself: after "ridgewatch CMD --" it offers exactly the command's
+// flags and --help; values of --format and --method are offered; the daemon's flags likewise.
+TEST(Usage, BashCompletionOffersEveryFlag) {
+  if (std::system("command -v bash >/dev/null 2>&1") != 0) GTEST_SKIP() << "no bash";
+  const auto script = std::filesystem::temp_directory_path() / ("ridgewatch-completion-" + std::to_string(::getpid()));
+  std::ofstream(script) << usage::bash_completion();
+  auto complete = [&](const std::string& function, const std::vector<std::string>& words) {
+    std::string cmd = "bash -c 'source " + script.string() + "; COMP_WORDS=(";
+    for (const auto& w : words) cmd += "\"" + w + "\" ";
+    cmd += "); COMP_CWORD=" + std::to_string(words.size() - 1) + "; " + function +
+           "; printf \"%s\\n\" \"${COMPREPLY[@]}\"' 2>&1";
+    FILE* p = ::popen(cmd.c_str(), "r");
+    std::string out;
+    char buf[4096];
+    for (std::size_t n; (n = std::fread(buf, 1, sizeof buf, p)) > 0;) out.append(buf, n);
+    ::pclose(p);
+    std::set<std::string> got;
+    std::istringstream in(out);
+    for (std::string line; std::getline(in, line);)
+      if (!line.empty()) got.insert(line);
+    return got;
+  };
+  for (const auto& c : usage::commands()) {
+    std::set<std::string> expected = {"--help"};
+    for (const auto& f : c.flags) expected.insert(f.name);
+    EXPECT_EQ(complete("_ridgewatch", {"ridgewatch", c.name, "--"}), expected) << c.name;
+  }
+  EXPECT_EQ(complete("_ridgewatch", {"ridgewatch", "mo"}), (std::set<std::string>{"modes"}));
+  EXPECT_EQ(complete("_ridgewatch", {"ridgewatch", "modes", "x.wav", "--format", ""}), (std::set<std::string>{"json", "table"}));
+  EXPECT_EQ(complete("_ridgewatch", {"ridgewatch", "modes", "--method", "r"}), (std::set<std::string>{"ridge-ls"}));
+  std::set<std::string> daemon_flags = {"--help"};
+  for (const auto& f : usage::daemon().flags) daemon_flags.insert(f.name);
+  EXPECT_EQ(complete("_ridgewatchd", {"ridgewatchd", "--"}), daemon_flags);
+  std::filesystem::remove(script);
+}
