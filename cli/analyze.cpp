@@ -22,7 +22,7 @@ int run_analyze(const std::vector<std::string>& argv, std::ostream& out, std::os
   const std::string& path = single_file(args);
   const drivers::ReplayOptions ropt = replay_options(args);
 
-  pipeline::PipelineConfig cfg;
+  pipeline::PipelineConfig cfg = default_config().pipeline;
   std::string cfg_name = "defaults";
   if (const auto file = args.value("--config")) {
     cfg = load_config_file(*file).pipeline;  // UsageError naming the file and YAML key
@@ -31,6 +31,7 @@ int run_analyze(const std::vector<std::string>& argv, std::ostream& out, std::os
 
   auto source = drivers::open_replay(path, ropt);
   cfg.sample_rate_hz = source->info().sample_rate_hz;
+  resolve_format_defaults(cfg, source->info().full_scale);  // clip_level from the file's format
   try {
     pipeline::validate(cfg);
   } catch (const std::invalid_argument& e) {

@@ -60,7 +60,8 @@ void walk(RidgewatchConfig& c, V& v) {
       v.num("window_s", a.window_s);
       v.method("method", a.method);
       v.num("min_snr_db", a.min_snr_db);
-      v.num("clip_level", a.clip_level);
+      v.num("max_ci_ratio", a.max_ci_ratio);
+      v.nullable("clip_level", a.clip_level);  // null: from the source format (resolve_format_defaults)
       v.num("ml_band_rel", a.ml_band_rel);
     });
     v.map("trend", [&] {
@@ -282,7 +283,15 @@ void check_values(const YamlReader& r, const RidgewatchConfig& c) {
 
 }  // namespace
 
-RidgewatchConfig default_config() { return RidgewatchConfig{}; }
+RidgewatchConfig default_config() {
+  RidgewatchConfig c;
+  c.pipeline.analyzer.clip_level = NAN;  // from the source's format when it opens
+  return c;
+}
+
+void resolve_format_defaults(pipeline::PipelineConfig& p, std::optional<double> full_scale) {
+  if (std::isnan(p.analyzer.clip_level) && full_scale) p.analyzer.clip_level = 0.999 * *full_scale;
+}
 
 namespace {
 RidgewatchConfig parse_config_unguarded(const std::string& text, const std::string& name) {

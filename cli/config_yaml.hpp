@@ -6,6 +6,7 @@
 #pragma once
 
 #include <cstdint>
+#include <optional>
 #include <string>
 
 #include "core/pipeline/stream_processor.hpp"
@@ -77,8 +78,12 @@ struct RidgewatchConfig {
   LoggingConfig logging;
 };
 
-/// Defaults of every key.
+/// Defaults of every key (pipeline.analyzer.clip_level: null, i.e. from the source's format).
 RidgewatchConfig default_config();
+/// Keys whose default depends on the source's sample format, once the source is open: a clip_level of
+/// null (NaN) becomes 0.999 x the format's full scale for integer PCM (SourceInfo::full_scale) and
+/// stays NaN (no clipping check) for float data in physical units.
+void resolve_format_defaults(pipeline::PipelineConfig& pipeline, std::optional<double> full_scale);
 /// Reads and checks a configuration file (keys absent from the file keep their defaults).
 RidgewatchConfig load_config_file(const std::string& path);
 /// Same from text; `name` stands for the file in messages.

@@ -110,7 +110,10 @@ struct Daemon::Impl {
   void record_latency(const pipeline::ImpactEvent& e) {
     const double speed = live ? 1.0 : cfg.source.replay.speed;
     if (!(speed > 0)) return;
-    const double due_s = (static_cast<double>(e.sample_index) / fs + cfg.pipeline.analyzer.window_s) / speed;
+    // The window's last sample (the decay window ends with the decay: window_s is only its maximum).
+    const double end_s = e.window_end_index > 0 ? static_cast<double>(e.window_end_index) / fs
+                                                : static_cast<double>(e.sample_index) / fs + cfg.pipeline.analyzer.window_s;
+    const double due_s = end_s / speed;
     const double ms = std::chrono::duration<double, std::milli>(Clock::now() - steady_at_start).count() - 1e3 * due_s;
     latency_sum_ms += ms;
     ++latency_count;
@@ -140,6 +143,7 @@ struct Daemon::Impl {
   void make_processor() {
     pipeline::PipelineConfig p = cfg.pipeline;
     p.sample_rate_hz = fs;
+    cli::resolve_format_defaults(p, source->info().full_scale);  // clip_level from the sample format
     try {
       pipeline::validate(p);
     } catch (const std::invalid_argument& e) {
@@ -303,6 +307,7 @@ struct Daemon::Impl {
     // The window has been consumed by the processor already and is still in the ring's history; a
     // window cut by the end of the stream or a gap is captured as far as it goes.
     auto length = static_cast<std::uint64_t>(std::ceil((pre_s + win_s) * fs));
+    if (e.window_end_index > first) length = std::min(length, e.window_end_index - first);  // the analysed window
     const std::uint64_t consumed = ring->read_stream_index();
     if (first + length > consumed) length = consumed > first ? consumed - first : 0;
     std::vector<float> window(static_cast<std::size_t>(length));

@@ -162,6 +162,7 @@ AlsaSource::AlsaSource(AlsaSourceConfig config, std::shared_ptr<const AlsaLocalC
   info_.sample_rate_hz = config_.rate_hz;
   info_.channels = config_.channels;
   info_.channel = config_.channel;
+  if (config_.format != AlsaSampleFormat::float_le) info_.full_scale = 1.0;  // integer formats: +-1.0
   bytes_per_sample_ = bytes_per_sample(config_.format);
   open_and_configure();
 }

@@ -303,6 +303,8 @@ std::unique_ptr<SampleSource> open_audio(const std::string& path, std::uint64_t 
   if (info.frames && *info.frames == 0) throw InputError(path + ": empty (0 samples)");
 
   const bool double_data = (sf_info.format & SF_FORMAT_SUBMASK) == SF_FORMAT_DOUBLE;
+  const bool float_data = double_data || (sf_info.format & SF_FORMAT_SUBMASK) == SF_FORMAT_FLOAT;
+  if (!float_data) info.full_scale = 1.0;  // integer PCM (and companded formats) decode to +-1.0
   return std::make_unique<SndfileSource>(file.release(), std::move(info), double_data);
 }
 

@@ -4,8 +4,9 @@
 //   * `.csv`, `.tsv`, `.txt` (any case): text samples, see drivers/csv_reader.hpp for the layout
 //     (one value column plus `csv_rate_hz`, or a time column in seconds plus value columns).
 //   * anything else: audio through libsndfile (WAV, FLAC, AIFF, ... 16/24/32-bit integer or float,
-//     any channel count). Integer PCM is scaled to full scale 1.0 (int16 -32768 -> -1.0); float files
-//     are delivered unscaled. A file libsndfile does not recognise is rejected even if it holds text:
+//     any channel count). Integer PCM is scaled to full scale 1.0 (int16 -32768 -> -1.0) and reports
+//     SourceInfo::full_scale = 1.0; float files are delivered unscaled and report no full scale (their
+//     values are physical units; nothing in the format says where a converter would clip). A file libsndfile does not recognise is rejected even if it holds text:
 //     the message suggests the CSV extension, so a mislabelled file never gets a silent guess.
 //
 // Every failure is an InputError whose message is "<path>: <problem>", e.g.

@@ -25,6 +25,10 @@ struct SourceInfo {
   std::size_t channels = 1;             ///< channels in the underlying stream
   std::size_t channel = 0;              ///< the channel this source delivers (0-based)
   std::optional<std::uint64_t> frames;  ///< total frames when known (files), empty for live streams
+  /// Full scale of the delivered samples when the format has one: 1.0 for integer PCM (scaled so),
+  /// empty for float formats and CSV text (physical units, no converter limit). The pipeline's
+  /// clipping check takes its default level from it (cli: resolve_format_defaults()).
+  std::optional<double> full_scale;
 };
 
 class SampleSource {

@@ -89,10 +89,12 @@ TEST(AnalyzeAcceptance, NuisanceCaseOkEventsAreRight) {
   }
   // The check above must not be vacuous: most impacts of this case are usable (measured 40 of 55).
   EXPECT_GE(ok, imp.size() / 2);
-  // Spike windows say so: the truth's 6 spikes each fall into at most one window.
+  // Spike windows say so: the truth's 6 spikes each fall into at most two windows (a decay window
+  // runs to 0.5 ms before the next onset, whose window starts 2 ms before it: a spike in those 1.5 ms
+  // is in both, and both analyses see it).
   std::size_t spikes = 0;
   for (const auto& e : c.events) spikes += e["status"] == "spike";
-  EXPECT_LE(spikes, 6u);
+  EXPECT_LE(spikes, 12u);
   EXPECT_GE(spikes, 1u);
 }
 

@@ -195,7 +195,9 @@ TEST_F(BadInput, WavWithNaN) {
       EXPECT_EQ(d.events[i]["zeta"], reference[i]["zeta"]);
     } else if (d.events[i]["status"] != "window_cut") {  // its window was complete before the NaN
       EXPECT_EQ(d.events[i]["sample_index"], reference[i]["sample_index"]);
-      EXPECT_EQ(d.events[i]["zeta"], reference[i]["zeta"]);
+      // The same samples, but the end of input may close the window where its decay ended rather
+      // than at the next onset: an analyzer of another maximum length (FFT round-off, ~1e-14).
+      EXPECT_NEAR(d.events[i]["zeta"].get<double>() / reference[i]["zeta"].get<double>(), 1.0, 1e-9);
     }  // else: an impact at the very end, honestly cut (its onset refined on the samples present)
   }
 }

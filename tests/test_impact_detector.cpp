@@ -287,8 +287,9 @@ TEST(ImpactDetector, DecisionDelayIsBoundedAndMeasured) {
               << " ms) = lookback " << d.lookback_samples() << " + decision " << d.decision_delay_samples() << "\n";
     // The per-sample design's bound was 13.9 ms (look-back 7.6 ms + refinement 6.3 ms) at the defaults;
     // this one: max(peak 6.6 ms + 1 ms, look-back 7.7 ms + confirmation 1.6 ms) + run (1.6 ms) and
-    // spike delay.
-    EXPECT_LE(static_cast<double>(d.report_delay_samples()) / fs, 0.011);
+    // spike delay (12 samples since the spike test also looks 10 samples right of a candidate: +8
+    // samples, 0.16-0.31 ms, against 11.0 ms before).
+    EXPECT_LE(static_cast<double>(d.report_delay_samples()) / fs, 0.0113);
   }
 }
 

@@ -86,7 +86,8 @@ struct ImpactAnalyzerConfig;
 
 /// Why the window is shorter than configured.
 enum class WindowEnd : std::uint8_t {
-  complete,     ///< the full configured window
+  complete,     ///< the full configured window (the maximum: the decay had not reached the floor)
+  decayed,      ///< ends where the decay reached the noise floor (StreamProcessor): a whole decay
   next_impact,  ///< cut before the next impact's onset
   gap,          ///< cut by a data gap or the end of the stream
 };
@@ -113,6 +114,9 @@ class ImpactAnalyzer {
   std::size_t max_samples() const { return n_pre_ + n_win_; }
   std::size_t pretrigger_samples() const { return n_pre_; }
   std::size_t window_samples() const { return n_win_; }
+  /// Length of the CWT's forward FFT (StreamProcessor picks maxima whose length is even: FFTW's odd
+  /// real transforms allocate work space on every execution).
+  std::size_t fft_length() const { return cwt_->fft_length(); }
   /// 2 when the CWT and the ML fit run on the half-rate copy of the window, 1 at full rate.
   std::size_t input_decimation() const { return in_dec_; }
   /// The rate bound of the half-rate copy: the highest frequency the analysis reads (the top CWT row's
@@ -129,6 +133,7 @@ class ImpactAnalyzer {
   double fs_a_ = 0;                              // analysis rate: fs_ / in_dec_
   std::size_t in_dec_ = 1;                       // 2: CWT and ML fit on the half-rate copy
   double f_expected_ = 0, band_rel_ = 0, ml_band_rel_ = 0, eta0_ = 7, min_snr_db_ = 20, clip_ = 0.999;
+  double max_ci_ratio_ = 1.25;
   dsp::DampingMethod method_ = dsp::DampingMethod::ml;
   std::size_t n_pre_ = 0, n_win_ = 0, n_ml_margin_ = 0;
   std::vector<double> rows_hz_;

@@ -45,7 +45,7 @@
 //     (as of the run's start, once the scale is warm): the blocks' clipped sums then do not wait for
 //     each other's scale updates (a serial chain of ~60 cycles per block before); it lags the scale by
 //     at most 1.2 ms against its time constant lta_s. The spike threshold uses the current scale.
-//     Decision delay: 4 samples.
+//     Decision delay: 12 samples (the isolation test reads residuals up to n + 10).
 //     Samples and residuals are float: the input is float32 already, and the residual's rounding
 //     error (~1e-7 of the neighbours' magnitude) is far below both limits (12 MAD of any real noise,
 //     a quarter of the neighbours).
@@ -125,7 +125,7 @@
 //     destructively with its first cycles.) The onset is decided as soon as the running maximum is
 //     final: when it has not grown for 1 ms, or when the onset it implies lies the model's peak time +
 //     1 ms in the past; never before the confirmation. Worst-case delay from an onset to its report:
-//     report_delay_samples(), 10.9-11.0 ms at the defaults (9.7-9.8 ms with 0.4 ms runs; the
+//     report_delay_samples(), 11.1-11.3 ms at the defaults (9.7-9.8 ms with 0.4 ms runs; the
 //     per-sample design waited 13.9 ms); measured up to 8.5 ms. Measured onsets on the simulated
 //     rig: within 0.1-0.2 ms of the start of the 0.15 ms force pulse (up to 0.34 ms for an impact on
 //     the start-up ring).
@@ -228,7 +228,7 @@ class ImpactDetector {
   /// long after a sample knows every onset at or before it.
   std::size_t decision_delay_samples() const { return report_delay_ - lookback_; }
   /// Worst-case delay from an onset to its report, in samples (= lookback + decision delay):
-  /// max(model peak time + 1 ms, look-back + confirmation) + one run + the spike delay. 10.9-11.0 ms
+  /// max(model peak time + 1 ms, look-back + confirmation) + one run + the spike delay. 11.1-11.3 ms
   /// at the defaults (25.6 and 51.2 kHz); tested by feeding impacts and counting samples.
   std::size_t report_delay_samples() const { return report_delay_; }
 
@@ -244,7 +244,7 @@ class ImpactDetector {
  private:
   static constexpr double kCapBias = 0.857;  // E min(z^2, 3) for z ~ N(0, 1)
   static constexpr double kCap = 3.0;
-  static constexpr std::size_t kSpikeDelay = 4;
+  static constexpr std::size_t kSpikeDelay = 12;  // the spike test reads x[n + 12] (isolation, right side)
   // decide_block() reads up to 2 samples and writes residuals up to the position of the sample that
   // completes a block (its vectors of four run past the block): the buffer is shifted when fewer than
   // this many slots follow that position.

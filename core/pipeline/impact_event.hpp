@@ -50,6 +50,10 @@ struct ImpactEvent {
   double snr_db = NAN;             ///< envelope peak power over noise power in the analysis band
   double amplitude = NAN;          ///< envelope amplitude at the start of the fit (signal units)
   double window_s = NAN;           ///< length of the decay window analysed, seconds
+  /// End (exclusive, absolute sample index) of the samples the analysis read: the decay window's end
+  /// (where the decay reached the floor, the next impact, a gap or window_s). 0 when not set. Not in
+  /// the event log; the daemon's capture and latency use it.
+  std::uint64_t window_end_index = 0;
   ImpactStatus status = ImpactStatus::ok;
   AlarmState alarm;
 };

@@ -7,7 +7,7 @@
 // An impact's window [onset - pretrigger, onset + window) is analysed as soon as it is final: when
 // the next onset is known and cuts it, or when enough samples past its end have arrived that no
 // later trigger can be refined to an onset inside it (the detector's report_delay_samples():
-// look-back plus decision delay, 10.9-11.0 ms at the defaults). That is the event latency after the
+// look-back plus decision delay, 11.1-11.3 ms at the defaults). That is the event latency after the
 // end of the decay window.
 #include "core/pipeline/stream_processor.hpp"
 
@@ -15,6 +15,7 @@
 #include <array>
 #include <bit>
 #include <limits>
+#include <numbers>
 #include <cmath>
 #include <sstream>
 #include <stdexcept>
@@ -80,7 +81,9 @@ void validate(const PipelineConfig& c) {
           "must be >= 10 Morlet kernel widths at f_expected_hz (" + num(min_window) + " s)", a.window_s);
   require(a.window_s * fs >= 80, "analyzer.window_s", "must span >= 80 samples", a.window_s);
   require(std::isfinite(a.min_snr_db), "analyzer.min_snr_db", "must be finite", a.min_snr_db);
-  require(std::isfinite(a.clip_level) && a.clip_level > 0, "analyzer.clip_level", "must be > 0", a.clip_level);
+  require(std::isfinite(a.max_ci_ratio) && a.max_ci_ratio > 1, "analyzer.max_ci_ratio", "must be > 1", a.max_ci_ratio);
+  require(std::isnan(a.clip_level) || (std::isfinite(a.clip_level) && a.clip_level > 0), "analyzer.clip_level",
+          "must be > 0 or null (no clipping check)", a.clip_level);
   require(std::isfinite(a.ml_band_rel) && a.ml_band_rel > 0 && a.ml_band_rel <= a.band_rel, "analyzer.ml_band_rel",
           "must be in (0, analyzer.band_rel = " + num(a.band_rel) + "]", a.ml_band_rel);
   try {
@@ -98,7 +101,12 @@ struct StreamProcessor::Impl {
 
   PipelineConfig cfg;
   double fs;
-  ImpactAnalyzer analyzer;
+  // Analyzers for decay windows of window_s, window_s / sqrt(2), window_s / 2, ... down to the shortest
+  // window the analysis accepts (ascending): each window goes to the shortest one that holds it, so a
+  // short decay costs what it did with a short fixed window (the CWT's FFT and the ML segments are
+  // sized by the analyzer's maximum) and window_s can be a generous maximum.
+  std::vector<std::unique_ptr<ImpactAnalyzer>> ladder;
+  ImpactAnalyzer& analyzer;  // the longest (window_s)
   ImpactDetector detector;
   trend::TrendMonitor trend_monitor;
 
@@ -112,14 +120,26 @@ struct StreamProcessor::Impl {
   std::size_t noise_span = 0;    // pre-trigger samples used for the noise estimate
   std::size_t noise_guard = 0;   // ... ending this far before the onset
 
+  static constexpr std::size_t kMaxLadder = 16;
+  std::size_t max_win = 0;      // window_s in samples: the longest decay window
+  std::size_t decay_step = 0;   // samples per decay-following step
+  std::size_t decay_first = 0;  // first step end after the onset
+  std::size_t peak_at = 0;      // the trigger band's envelope peak after an onset (detector model)
+
   struct Pending {
     std::uint64_t onset;
     double noise_var;
+    bool noise_measured = false;   // noise_var from pre-trigger samples (else the LTA's stand-in)
+    std::uint64_t checked = 0;     // end of the next step to check (0: not started)
+    double peak_power = NAN;       // trigger-band power at the envelope's peak
+    std::uint64_t decay_end = 0;   // where the decay reached the floor (0: not yet)
+    bool exhausted = false;        // followed to the window's end (or the cut) without reaching it
   };
   std::array<Pending, kMaxPending> pending{};
   std::size_t p_head = 0, p_count = 0;
   std::array<double, kNoiseHistory> noise_hist{};
   std::size_t n_head = 0, n_count = 0;
+  bool noise_measured = false;  // the last noise_for() had pre-trigger measurements
 
   std::uint64_t samples = 0, impacts = 0, gaps = 0;
   // First sample index at which front_ready() can turn true (recomputed whenever the pending queue
@@ -129,7 +149,8 @@ struct StreamProcessor::Impl {
   explicit Impl(const PipelineConfig& c)
       : cfg((validate(c), c)),
         fs(c.sample_rate_hz),
-        analyzer(c.analyzer, c.sample_rate_hz),
+        ladder(make_ladder(c)),
+        analyzer(*ladder.back()),
         detector(c.detector, c.sample_rate_hz,
                  analyzer.max_samples() + static_cast<std::size_t>(std::ceil(0.002 * c.sample_rate_hz))),
         trend_monitor(c.trend) {
@@ -141,6 +162,62 @@ struct StreamProcessor::Impl {
     raw.assign(ring, 0.0f);
     mask = ring - 1;
     window_buf.assign(analyzer.max_samples(), 0.0f);
+    // Decay following (follow_decay()): band powers over steps of one correlation time of the trigger
+    // band's envelope, 1 / (band_hi - band_lo) (4 ms at the defaults), from past the envelope's peak
+    // and the analysis' minimum window (10 kernel widths) on.
+    const ImpactDetectorConfig& d = c.detector;
+    max_win = std::min<std::size_t>(static_cast<std::size_t>(std::llround(c.analyzer.window_s * fs)),
+                                    analyzer.window_samples());
+    decay_step = static_cast<std::size_t>(std::ceil(fs / (d.band_hi_hz - d.band_lo_hz)));
+    decay_step = std::max<std::size_t>(decay_step, 16);
+    peak_at = static_cast<std::size_t>(std::llround(detector.peak_samples()));
+    const double kernel_s = c.analyzer.eta0 / (2.0 * 3.141592653589793 * c.analyzer.f_expected_hz);
+    // The earliest decay end: 12 kernel widths (the analysis' minimum plus margin), past the envelope's
+    // peak, and long enough for 9 DFT bins across the ML band, 9 / (2 ml_band_rel f_expected) (44 ms
+    // at the defaults; the fit then keeps its two residual terms). A decay that drowns in lines and
+    // noise sooner still gets that much data (measured on the 51.2 kHz nuisance records of
+    // test_pipeline_indep: ending at the floor after ~20 ms left 4 bins and doubled the spread).
+    const double ml_bins_s = 9.0 / (2.0 * c.analyzer.ml_band_rel * c.analyzer.f_expected_hz);
+    decay_first = std::max<std::size_t>({static_cast<std::size_t>(std::ceil(12.0 * kernel_s * fs)),
+                                         static_cast<std::size_t>(std::ceil(ml_bins_s * fs)), peak_at + 2 * decay_step});
+  }
+
+  static std::vector<std::unique_ptr<ImpactAnalyzer>> make_ladder(const PipelineConfig& c) {
+    validate(c);
+    const ImpactAnalyzerConfig& a = c.analyzer;
+    const double kernel_s = a.eta0 / (2.0 * 3.141592653589793 * a.f_expected_hz);
+    const double shortest = std::max(10.0 * kernel_s, 80.0 / c.sample_rate_hz);  // validate()'s minimum
+    std::vector<double> windows{a.window_s};
+    // Steps of sqrt(2): a window uses at most 41 % more FFT length than it needs (the per-impact cost
+    // is mostly the CWT's FFTs over the analyzer's maximum), and the analyzer's ML segments (k/8 of
+    // its maximum) stay close to the window. Measured (`ridgewatch analyze`, 60 s at 51.2 kHz, 1500
+    // impacts 40 ms apart, task-clock): start-up 82 ms, then 40 ms; steps of 2: 51 + 37 ms, but the
+    // 40 ms windows then fit only 31 ms segments and sim-tacho's median |zeta error| went 0.2 -> 3 %
+    // (the fixed 35 ms window before: 6 + 32 ms).
+    while (windows.size() < kMaxLadder && windows.back() / std::numbers::sqrt2 >= shortest)
+      windows.push_back(windows.back() / std::numbers::sqrt2);
+    std::vector<std::unique_ptr<ImpactAnalyzer>> out;
+    for (auto it = windows.rbegin(); it != windows.rend(); ++it) {
+      ImpactAnalyzerConfig ac = a;
+      ac.window_s = *it;
+      auto an = std::make_unique<ImpactAnalyzer>(ac, c.sample_rate_hz);
+      // A maximum whose CWT FFT has an odd length (FFTW's odd real transform allocates on every
+      // execution) is lengthened by 1 % steps until it is even (windows still end at window_s:
+      // max_win).
+      for (int k = 1; k <= 16 && an->fft_length() % 2 != 0; ++k) {
+        ac.window_s = *it * (1.0 + 0.01 * k);
+        an = std::make_unique<ImpactAnalyzer>(ac, c.sample_rate_hz);
+      }
+      out.push_back(std::move(an));
+    }
+    return out;
+  }
+
+  // The shortest analyzer whose window holds `len` samples after the onset.
+  ImpactAnalyzer& analyzer_for(std::size_t len) {
+    for (auto& a : ladder)
+      if (a->window_samples() >= len) return *a;
+    return analyzer;
   }
 
   Pending& pending_at(std::size_t k) { return pending[(p_head + k) % kMaxPending]; }
@@ -151,14 +228,21 @@ struct StreamProcessor::Impl {
   double noise_for(std::uint64_t onset) {
     const std::uint64_t end = onset > noise_guard ? onset - noise_guard : 0;
     const std::uint64_t begin = end > noise_span ? end - noise_span : 0;
-    double p = detector.band_power(std::max(begin, seg_start), end);
-    if (!std::isfinite(p)) p = detector.lta();
+    // Only measured pre-trigger powers enter the history. Without any (an impact in the first samples of
+    // a segment) the LTA stands in for this impact alone: at a segment start it is the white-noise power
+    // implied by the spike stage's scale, which strong high modes (a real hammer hit's) inflate by
+    // 20-30 dB, and as one of two history values it used to set the second impact's floor as well.
+    const double p = detector.band_power(std::max(begin, seg_start), end);
     if (std::isfinite(p)) {
       noise_hist[n_head] = p;
       n_head = (n_head + 1) % kNoiseHistory;
       n_count = std::min(n_count + 1, kNoiseHistory);
     }
-    if (n_count == 0) return NAN;
+    noise_measured = n_count > 0;
+    if (n_count == 0) {
+      const double lta = detector.lta();
+      return std::isfinite(lta) ? lta / detector.band_noise_gain() : NAN;
+    }
     std::array<double, kNoiseHistory> tmp = noise_hist;
     const std::size_t mid = n_count / 2;
     std::nth_element(tmp.begin(), tmp.begin() + static_cast<std::ptrdiff_t>(mid), tmp.begin() + static_cast<std::ptrdiff_t>(n_count));
@@ -170,28 +254,80 @@ struct StreamProcessor::Impl {
       const std::uint64_t o = detector.pop_onset();
       ++impacts;
       if (p_count == kMaxPending) analyze_front(events);  // cannot happen with sane configs
-      pending_at(p_count) = {o, noise_for(o)};
+      const double nv = noise_for(o);
+      pending_at(p_count) = Pending{o, nv, noise_measured};
       ++p_count;
     }
   }
 
-  bool front_ready() {
-    if (p_count == 0) return false;
+  // The front window's hard end: the maximum (onset + window_s) or, when the next onset comes before
+  // it, cut_guard before that onset.
+  std::uint64_t hard_end(bool& cut) {
     const std::uint64_t o = pending_at(0).onset;
-    const std::uint64_t end = o + analyzer.window_samples();
-    if (p_count > 1 && pending_at(1).onset < end + cut_guard) return true;  // cut: end known
-    return next >= end + wait_after;
+    const std::uint64_t end = o + max_win;
+    cut = p_count > 1 && pending_at(1).onset < end + cut_guard;
+    if (!cut) return end;
+    const std::uint64_t nx = pending_at(1).onset;
+    return std::max(nx > cut_guard ? nx - cut_guard : 0, o);
   }
+
+  // Decay window (the analysis window ends with the decay, window_s is the maximum): steps of
+  // decay_step samples after the onset, from decay_first on, each checked once its trigger-band
+  // powers are final (wait_after samples later, or at the segment end: `final_data`). The decay has
+  // reached the floor at the end of the first step whose mean trigger-band power is at most twice the
+  // noise floor between impacts (the in-band power of the pre-trigger samples, lines included), or
+  // 40 dB below the power at the envelope's peak (what follows adds little: the Fisher information
+  // about sigma in a decay's power beyond u = ln 1e4 = 9.2 is e^-u (1 + u + u^2 / 2) = 0.5 % of it).
+  void follow_decay(Pending& p, std::uint64_t end, bool final_data) {
+    if (p.decay_end != 0 || p.exhausted) return;
+    const std::uint64_t o = p.onset;
+    if (p.checked == 0) p.checked = o + decay_first;
+    const std::uint64_t limit = final_data ? next : (next > wait_after ? next - wait_after : 0);
+    // Without a measured floor (the LTA's stand-in) only the 40 dB rule ends the decay.
+    const double floor =
+        p.noise_measured && std::isfinite(p.noise_var) ? 2.0 * p.noise_var * detector.band_noise_gain() : 0.0;
+    while (p.checked <= limit) {
+      if (p.checked > end) {
+        p.exhausted = true;
+        return;
+      }
+      if (!(p.peak_power > 0)) {
+        const std::uint64_t a = o + peak_at, h = decay_step / 2;
+        p.peak_power = detector.band_power(a > h ? a - h : 0, a + h);
+      }
+      const double pw = detector.band_power(p.checked - decay_step, p.checked);
+      // At a segment start the band's fill-up hides the envelope's peak: the largest step stands in.
+      if (std::isfinite(pw) && !(pw <= p.peak_power)) p.peak_power = pw;
+      if (std::isfinite(pw) && (pw <= floor || (p.peak_power > 0 && pw <= 1e-4 * p.peak_power))) {
+        p.decay_end = p.checked;
+        return;
+      }
+      p.checked += decay_step;
+    }
+    if (final_data) p.exhausted = true;
+  }
+
+  // First sample index at which the front window is final (0: now), after following its decay with
+  // the data seen so far.
+  std::uint64_t front_ready_at(bool final_data = false) {
+    if (p_count == 0) return std::numeric_limits<std::uint64_t>::max();
+    Pending& p = pending_at(0);
+    bool cut = false;
+    const std::uint64_t end = hard_end(cut);
+    follow_decay(p, end, final_data);
+    // A decay that ended before the next onset: final once no onset can lie in it (known when the
+    // next onset is).
+    if (p.decay_end != 0) return cut ? 0 : p.decay_end + wait_after;
+    if (p.exhausted) return cut ? 0 : end + wait_after;
+    return p.checked + wait_after;  // the next step's powers are final then
+  }
+
+  bool front_ready() { return front_ready_at() <= next; }
 
   // Analyses every final window, then recomputes ready_at.
   void analyze_ready(std::vector<ImpactEvent>& events) {
     while (front_ready()) analyze_front(events);
-    if (p_count == 0) {
-      ready_at = std::numeric_limits<std::uint64_t>::max();
-    } else {
-      const std::uint64_t end = pending_at(0).onset + analyzer.window_samples();
-      ready_at = (p_count > 1 && pending_at(1).onset < end + cut_guard) ? 0 : end + wait_after;
-    }
+    ready_at = front_ready_at();
   }
 
   void analyze_front(std::vector<ImpactEvent>& events) {
@@ -200,8 +336,12 @@ struct StreamProcessor::Impl {
     --p_count;
     const std::uint64_t o = p.onset;
     const std::uint64_t w0 = std::max(o > analyzer.pretrigger_samples() ? o - analyzer.pretrigger_samples() : 0, seg_start);
-    std::uint64_t end = o + analyzer.window_samples();
+    std::uint64_t end = o + max_win;
     WindowEnd kind = WindowEnd::complete;
+    if (p.decay_end != 0 && p.decay_end <= end) {
+      end = p.decay_end;
+      kind = WindowEnd::decayed;
+    }
     if (p_count > 0 && pending_at(0).onset < end + cut_guard) {
       const std::uint64_t nx = pending_at(0).onset;
       end = std::max(nx > cut_guard ? nx - cut_guard : 0, o);
@@ -233,7 +373,8 @@ struct StreamProcessor::Impl {
     win.noise_var = p.noise_var;
     win.spike = detector.spike_in(w0, end);
     win.onset_index = o;
-    ImpactEvent ev = analyzer.analyze(win);
+    ImpactEvent ev = analyzer_for(static_cast<std::size_t>(end - o)).analyze(win);
+    ev.window_end_index = end;
     ev.alarm = trend_monitor.update(ev);
     events.push_back(ev);
   }
@@ -241,7 +382,10 @@ struct StreamProcessor::Impl {
   void end_segment(std::vector<ImpactEvent>& events) {
     detector.finish();
     take_onsets(events);
-    while (p_count > 0) analyze_front(events);
+    while (p_count > 0) {
+      front_ready_at(true);  // follow the front decay with all the data there is
+      analyze_front(events);
+    }
     ready_at = std::numeric_limits<std::uint64_t>::max();
   }
 

