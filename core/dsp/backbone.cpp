@@ -65,24 +65,32 @@ void test_backbone(Backbone& bb, const BackboneOptions& opt) {
   if (k < std::max<std::size_t>(opt.min_segments, 3)) return;
   bb.tested = true;
   bb.dof = k - 1;
-  double sw = 0, swz = 0, amean = 0;
+  double sw = 0, swz = 0;
   for (std::size_t i = 0; i < k; ++i) {
     sw += w[i];
     swz += w[i] * zeta[i];
-    amean += amp[i] / static_cast<double>(k);
   }
   const double zmean = swz / sw;
   bb.chi2_constant = 0;
   for (std::size_t i = 0; i < k; ++i) bb.chi2_constant += w[i] * (zeta[i] - zmean) * (zeta[i] - zmean);
-  std::vector<double> xc(k);
-  for (std::size_t i = 0; i < k; ++i) xc[i] = amp[i] - amean;
-  LineFit lin;
-  if (!fit_line(xc, zeta, w, lin)) return;
+  // Both laws on the raw amplitude, zeta = a + b A and zeta = a + b / A, by weighted least squares; the
+  // one with the smaller residual sum carries the test (a curved 1/A backbone fits a straight line in A
+  // badly, so a test on the line alone would miss dry friction).
+  LineFit l1, l2;
+  const bool ok1 = fit_line(amp, zeta, w, l1);
+  std::vector<double> inv(k);
+  for (std::size_t i = 0; i < k; ++i) inv[i] = 1.0 / amp[i];
+  const bool ok2 = fit_line(inv, zeta, w, l2);
+  if (!ok1 && !ok2) return;
+  const bool use_coulomb = ok2 && (!ok1 || l2.rss < l1.rss);
+  const LineFit& best = use_coulomb ? l2 : l1;
   // Scatter beyond the stated uncertainties widens the slope's uncertainty (never narrows it).
-  const double inflate = std::sqrt(std::max(1.0, lin.rss / static_cast<double>(k - 2 > 0 ? k - 2 : 1)));
-  bb.slope_z = lin.b / (lin.b_sd * inflate);
+  const double inflate = std::sqrt(std::max(1.0, best.rss / static_cast<double>(k - 2)));
+  // Sign convention: + when zeta rises with the amplitude (b / A falls with A).
+  bb.slope_z = (use_coulomb ? -1.0 : 1.0) * best.b / (best.b_sd * inflate);
   const auto [amin, amax] = std::minmax_element(amp.begin(), amp.end());
-  bb.relative_change = std::abs(lin.b) * (*amax - *amin) / std::abs(zmean);
+  const double x_lo = use_coulomb ? 1.0 / *amax : *amin, x_hi = use_coulomb ? 1.0 / *amin : *amax;
+  bb.relative_change = std::abs(best.b) * (x_hi - x_lo) / std::abs(zmean);
   bb.amplitude_dependent = std::abs(bb.slope_z) > opt.slope_z && bb.relative_change > opt.min_relative_change;
   if (!bb.amplitude_dependent) {
     bb.a = zmean;
@@ -91,23 +99,13 @@ void test_backbone(Backbone& bb, const BackboneOptions& opt) {
     bb.a_ci95_hi = zmean + kZ95 * sd;
     return;
   }
-  // Both laws on the raw amplitude: zeta = a + b A and zeta = a + b / A.
-  LineFit l1, l2;
-  const bool ok1 = fit_line(amp, zeta, w, l1);
-  std::vector<double> inv(k);
-  for (std::size_t i = 0; i < k; ++i) inv[i] = 1.0 / amp[i];
-  const bool ok2 = fit_line(inv, zeta, w, l2);
-  const bool use_coulomb = ok2 && (!ok1 || l2.rss < l1.rss);
-  const LineFit& best = use_coulomb ? l2 : l1;
-  if (!ok1 && !ok2) return;
   bb.law = use_coulomb ? BackboneLaw::coulomb : BackboneLaw::linear;
-  const double s = std::sqrt(std::max(1.0, best.rss / static_cast<double>(k - 2 > 0 ? k - 2 : 1)));
   bb.a = best.a;
   bb.b = best.b;
-  bb.a_ci95_lo = best.a - kZ95 * s * best.a_sd;
-  bb.a_ci95_hi = best.a + kZ95 * s * best.a_sd;
-  bb.b_ci95_lo = best.b - kZ95 * s * best.b_sd;
-  bb.b_ci95_hi = best.b + kZ95 * s * best.b_sd;
+  bb.a_ci95_lo = best.a - kZ95 * inflate * best.a_sd;
+  bb.a_ci95_hi = best.a + kZ95 * inflate * best.a_sd;
+  bb.b_ci95_lo = best.b - kZ95 * inflate * best.b_sd;
+  bb.b_ci95_hi = best.b + kZ95 * inflate * best.b_sd;
 }
 
 Backbone estimate_backbone(const EnvelopeRow& row, const EnvelopeWindow& win, double f_d_hz,

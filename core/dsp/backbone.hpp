@@ -10,10 +10,10 @@
 // independent noise (the row's noise autocorrelation is exp(-dt^2 / (4 s^2))), so the points are
 // treated as independent.
 //
-// Constancy test: weighted least squares of zeta_i = a + b (A_i - A_mean) with weights 1/zeta_sd_i^2.
-// The mode is called amplitude dependent when both
-//   - the slope is significant: |b| / sd(b) > `slope_z` (with sd(b) inflated by sqrt(chi2/dof) when the
-//     scatter about the line exceeds the stated uncertainties), and
+// Constancy test: weighted least squares (weights 1/zeta_sd_i^2) of both laws below; the better one
+// (smaller residual sum) decides. The mode is called amplitude dependent when both
+//   - the law's slope is significant: |b| / sd(b) > `slope_z` (sd(b) inflated by sqrt(chi2/dof) when
+//     the scatter about the law exceeds the stated uncertainties), and
 //   - it matters: the fitted zeta changes by more than `min_relative_change` of its mean over the
 //     measured amplitude range.
 // The second condition keeps small deterministic biases of the envelope (neighbour leakage, the noise
@@ -56,7 +56,7 @@ struct Backbone {
   std::vector<BackbonePoint> points;  ///< ordered by time (amplitude falling)
   bool tested = false;                ///< enough segments for the constancy test
   bool amplitude_dependent = false;
-  double slope_z = NAN;               ///< b / sd(b) of the linear test (sign: + zeta rises with A)
+  double slope_z = NAN;               ///< b / sd(b) of the better law (sign: + when zeta rises with A)
   double relative_change = NAN;       ///< |b| (A_max - A_min) / zeta_mean
   double chi2_constant = NAN;         ///< chi-square of the points about their weighted mean
   std::size_t dof = 0;                ///< its degrees of freedom (points - 1)

@@ -22,11 +22,13 @@ namespace {
 constexpr double kTwoPi = 2.0 * std::numbers::pi;
 /// Detection resolutions: eta0 = 7 (the paper's, good time resolution), 20 and 50 (relative frequency
 /// resolutions 1/eta0 of 5 % and 2 %, which separate modes 15 % and 6 % apart).
-constexpr double kDetectEta0[] = {7.0, 20.0, 50.0};
-/// Finer resolutions (relative 0.7 %, 0.25 %, 0.1 %), from the periodogram: the time-mean of |W|^2 of a
-/// row is, by Parseval, the periodogram weighted by the filter's power response, so these need no
-/// inverse FFTs. Used only where the kernel fits the record 16 times.
-constexpr double kDetectFineEta0[] = {150.0, 400.0, 1000.0};
+/// Detection resolutions eta0 = 7 (the paper's) up to 1000 (relative filter sd 14 % .. 0.1 %). The
+/// time-mean of |W|^2 of a row is, by Parseval, the periodogram weighted by the filter's power response,
+/// so the spectra come from one FFT; a CWT (eta0 = 7, 8 voices per octave) is needed only for the noise
+/// floor (each row's |W|^2 in time). A resolution is used only where its kernel fits the record 16 times.
+constexpr double kFloorEta0 = 7.0;
+constexpr std::size_t kFloorVoices = 8;
+constexpr double kDetectFineEta0[] = {7.0, 20.0, 50.0, 150.0, 400.0, 1000.0};
 constexpr double kMaxEta0 = 1000.0;  // the estimation's limit (MorletCwtConfig accepts up to 1000)
 
 struct Peak {
@@ -152,12 +154,13 @@ double floor_at(const LevelScan& lv, double f);
 // A fine detection resolution from the periodogram: row f is the mean of P weighted by the analysing
 // filter's power response 4 exp(-eta0^2 (nu / f - 1)^2) (morlet_cwt.hpp). Floor from the CWT scan.
 LevelScan smoothed_level(const std::vector<double>& pg, double df, double eta0, double f_lo, double f_hi,
-                         double duration, const LevelScan& base) {
+                         double duration, const LevelScan& base, std::size_t voices) {
   LevelScan lv;
   lv.eta0 = eta0;
   const double lo = std::max(f_lo, 16.0 * eta0 / (kTwoPi * duration));
   if (!(lo * 1.1 < f_hi) || base.freqs.empty()) return lv;
-  const double dlnf = 1.0 / (1.5 * eta0);  // 1.5 rows per filter standard deviation
+  // At least 1.5 rows per filter standard deviation, and at least `voices` per octave.
+  const double dlnf = std::min(1.0 / (1.5 * eta0), std::numbers::ln2 / static_cast<double>(voices));
   const auto rows = static_cast<std::size_t>(std::ceil(std::log(f_hi / lo) / dlnf)) + 1;
   lv.freqs = make_frequency_grid(lo, f_hi, rows, GridSpacing::log);
   lv.profile.resize(rows);
@@ -404,13 +407,12 @@ ModeSearchResult identify_modes(std::span<const double> signal_in, double fs, co
   const double det_hi = std::max(result.f_max_hz, f_auto_max);
   std::vector<LevelScan> levels;
   const double min_ratio = std::pow(10.0, opt.min_peak_snr_db / 10.0);
-  for (double eta0 : kDetectEta0)
-    levels.push_back(scan_level(signal, fs, eta0, det_lo, det_hi, opt.voices_per_octave, opt.envelope.edge_widths));
-  const LevelScan base = levels.front();  // eta0 = 7: the widest frequency range
+  const LevelScan base = scan_level(signal, fs, kFloorEta0, det_lo, det_hi, kFloorVoices, opt.envelope.edge_widths);
   {
     double df = 0.0;
     const std::vector<double> pg = periodogram(signal, fs, df);
-    for (double eta0 : kDetectFineEta0) levels.push_back(smoothed_level(pg, df, eta0, det_lo, det_hi, duration_s, base));
+    for (double eta0 : kDetectFineEta0)
+      levels.push_back(smoothed_level(pg, df, eta0, det_lo, det_hi, duration_s, base, opt.voices_per_octave));
   }
   std::vector<Peak> peaks;
   for (auto it = levels.rbegin(); it != levels.rend(); ++it) {  // finest first
@@ -635,7 +637,8 @@ ModeSearchResult identify_modes(std::span<const double> signal_in, double fs, co
     const std::vector<double> pg = periodogram(res, fs, df);
     std::vector<Peak> extra;
     for (double eta0 : kDetectFineEta0) {
-      const LevelScan lv = smoothed_level(pg, df, eta0, result.f_min_hz, result.f_max_hz, duration_s, base);
+      if (eta0 < 100.0) continue;  // hidden neighbours are close: the fine resolutions only
+      const LevelScan lv = smoothed_level(pg, df, eta0, result.f_min_hz, result.f_max_hz, duration_s, base, opt.voices_per_octave);
       std::vector<Peak> found;
       find_peaks(lv, min_ratio, found);
       for (const Peak& p : found) {
