@@ -29,7 +29,9 @@ constexpr double kTwoPi = 2.0 * std::numbers::pi;
 constexpr double kFloorEta0 = 7.0;
 constexpr std::size_t kFloorVoices = 8;
 constexpr double kDetectFineEta0[] = {7.0, 20.0, 50.0, 150.0, 400.0, 1000.0};
-constexpr double kMaxEta0 = 1000.0;  // the estimation's limit (MorletCwtConfig accepts up to 1000)
+constexpr double kMaxEta0 = 1000.0;
+constexpr std::size_t kMaxJointModes = 8;  // above: the maximum-likelihood fit runs in groups of neighbours
+constexpr std::size_t kMaxHiddenModes = 4;  // modes the residual rescan may add  // the estimation's limit (MorletCwtConfig accepts up to 1000)
 
 struct Peak {
   double f_hz = 0.0;
@@ -287,18 +289,21 @@ void sanitize(DampingEstimate& e, double f_lo, double f_hi, std::string& note) {
   if (e.status == EstimateStatus::ok && !(std::isfinite(e.zeta) && std::isfinite(e.zeta_sd))) e.status = EstimateStatus::fit_failed;
 }
 
-// Cross-check of two estimates of one mode: 4 combined standard uncertainties in ln zeta and in f, with
+// Cross-check of two estimates of one mode: 3.5 (ln zeta) and 4 (f) combined standard uncertainties, with
 // a 1 % (zeta) and 1e-4 (f) allowance for the envelope method's small deterministic biases (interference
 // of neighbouring modes), which matter only when noise is negligible.
 // When zeta varies along the decay beyond noise (the backbone's points scatter more than their
 // uncertainties), estimators that weight the decay differently legitimately differ by up to that
-// variation: `spread` (relative, <= 0.2) widens the allowance.
+// variation: `spread` (relative, <= 0.1) is allowed on top of the 4 combined standard uncertainties.
 bool agree(const DampingEstimate& a, const DampingEstimate& b, double spread = 0.0) {
-  const double z_zeta = std::abs(std::log(a.zeta / b.zeta)) /
-                        std::hypot(std::hypot(a.zeta_sd / a.zeta, b.zeta_sd / b.zeta), std::hypot(0.01, spread));
+  // The allowance applies only where both estimates are precise enough to see that variation (relative
+  // uncertainty below half of it); an imprecise estimate gets no extra room.
+  if (!(a.zeta_sd / a.zeta < 0.5 * spread && b.zeta_sd / b.zeta < 0.5 * spread)) spread = 0.0;
+  const double z_zeta = std::max(0.0, std::abs(std::log(a.zeta / b.zeta)) - spread) /
+                        std::hypot(std::hypot(a.zeta_sd / a.zeta, b.zeta_sd / b.zeta), 0.01);
   const double fa = std::isfinite(a.f_sd_hz) ? a.f_sd_hz : 0.0, fb = std::isfinite(b.f_sd_hz) ? b.f_sd_hz : 0.0;
   const double z_f = std::abs(a.f_hz - b.f_hz) / std::hypot(std::hypot(fa, fb), 1e-4 * a.f_hz);
-  return z_zeta <= 4.0 && z_f <= 4.0;
+  return z_zeta <= 3.5 && z_f <= 4.0;
 }
 
 // Time-domain least squares of the complex amplitudes of given damped modes (f, zeta) over x[0, n):
@@ -526,11 +531,34 @@ ModeSearchResult identify_modes(std::span<const double> signal_in, double fs, co
     ml_opt.f_lo_hz = result.f_min_hz;
     ml_opt.f_hi_hz = result.f_max_hz;
     MlFitResult ml;
-    try {
-      ml = fitter.fit(seg, guesses, ml_opt);
-    } catch (const std::exception&) {
-      ml.modes.assign(guesses.size(), DampingEstimate{});
-      for (auto& e : ml.modes) e.method = DampingMethod::ml;
+    ml.modes.assign(guesses.size(), DampingEstimate{});
+    for (auto& e : ml.modes) e.method = DampingMethod::ml;
+    if (guesses.size() <= kMaxJointModes) {
+      try {
+        ml = fitter.fit(seg, guesses, ml_opt);
+      } catch (const std::exception&) {
+      }
+    } else {
+      // Many modes (real structures): the joint fit's cost grows with the cube of the parameters, so
+      // modes are fitted in groups of neighbours (consecutive modes less than 15 % apart), each over
+      // its own band (10 half-power bandwidths or 5 % beyond its outer modes); the residual terms take
+      // the tails of the other groups.
+      std::size_t g0 = 0;
+      while (g0 < guesses.size()) {
+        std::size_t g1 = g0 + 1;
+        while (g1 < guesses.size() && guesses[g1].f_hz < 1.15 * guesses[g1 - 1].f_hz && g1 - g0 < kMaxJointModes) ++g1;
+        MlFitOptions grp = ml_opt;
+        const ModeGuess& lo = guesses[g0];
+        const ModeGuess& hi = guesses[g1 - 1];
+        grp.f_lo_hz = std::max(result.f_min_hz, lo.f_hz * (1.0 - std::max(0.05, 10.0 * lo.zeta)));
+        grp.f_hi_hz = std::min(result.f_max_hz, hi.f_hz * (1.0 + std::max(0.05, 10.0 * hi.zeta)));
+        try {
+          const MlFitResult part = fitter.fit(seg, std::span<const ModeGuess>(guesses).subspan(g0, g1 - g0), grp);
+          for (std::size_t i = g0; i < g1; ++i) ml.modes[i] = part.modes[i - g0];
+        } catch (const std::exception&) {
+        }
+        g0 = g1;
+      }
     }
     for (std::size_t i = 0; i < work.size(); ++i) {
       DampingEstimate e = ml.modes[i];
@@ -650,7 +678,7 @@ ModeSearchResult identify_modes(std::span<const double> signal_in, double fs, co
     }
     if (!extra.empty()) {
       std::sort(extra.begin(), extra.end(), [](const Peak& x, const Peak& y) { return x.level > y.level; });
-      if (extra.size() > opt.max_modes) extra.resize(opt.max_modes);
+      if (extra.size() > kMaxHiddenModes) extra.resize(kMaxHiddenModes);
       for (const Peak& p : extra) {
         peaks.push_back(p);
         cand.push_back(p);
@@ -688,7 +716,7 @@ ModeSearchResult identify_modes(std::span<const double> signal_in, double fs, co
       add_note(m.note, "the ridge left its mode (frequency drifts within the window)");
     }
     // Variation of zeta along the decay beyond the points' uncertainties (chi2 / dof > 4): the relative
-    // standard deviation of the backbone's zeta, at most 20 %.
+    // standard deviation of the backbone's zeta, at most 10 %.
     double spread = 0.0;
     if (m.backbone.tested && m.backbone.chi2_constant > 4.0 * static_cast<double>(m.backbone.dof)) {
       double s1 = 0, s2 = 0, k = 0;
@@ -698,7 +726,7 @@ ModeSearchResult identify_modes(std::span<const double> signal_in, double fs, co
           s2 += p.zeta * p.zeta;
           k += 1;
         }
-      if (k > 1) spread = std::min(0.2, std::sqrt(std::max(0.0, s2 / k - (s1 / k) * (s1 / k))) / (s1 / k));
+      if (k > 1) spread = std::min(0.1, std::sqrt(std::max(0.0, s2 / k - (s1 / k) * (s1 / k))) / (s1 / k));
       add_note(m.note, "zeta varies along the decay (backbone scatter " + std::to_string(static_cast<int>(std::lround(100 * spread))) + " %): the estimators are compared within that");
     }
     // Estimators that disagree: the envelope fit and the time-series fit see the same mode through
@@ -706,6 +734,11 @@ ModeSearchResult identify_modes(std::span<const double> signal_in, double fs, co
     if (m.ml.status == EstimateStatus::ok && m.ridge_ls.status == EstimateStatus::ok && !agree(m.ml, m.ridge_ls, spread)) {
       m.ml.status = m.ridge_ls.status = EstimateStatus::inconsistent;
       add_note(m.note, "ml and ridge-ls disagree beyond their uncertainties");
+    }
+    // ml is ok only when an independent estimator confirms it: without an ok ridge-ls, nothing does.
+    if (m.ml.status == EstimateStatus::ok && m.ridge_ls.status != EstimateStatus::ok) {
+      m.ml.status = EstimateStatus::inconsistent;
+      add_note(m.note, "ml not confirmed: ridge-ls is " + std::string(to_string(m.ridge_ls.status)));
     }
     const DampingEstimate* ref = m.ml.status == EstimateStatus::ok ? &m.ml : m.ridge_ls.status == EstimateStatus::ok ? &m.ridge_ls : nullptr;
     if (m.two_point.status == EstimateStatus::ok) {
