@@ -31,7 +31,7 @@ constexpr std::size_t kFloorVoices = 8;
 constexpr double kDetectFineEta0[] = {7.0, 20.0, 50.0, 150.0, 400.0, 1000.0};
 constexpr double kMaxEta0 = 1000.0;
 constexpr std::size_t kMaxJointModes = 8;  // above: the maximum-likelihood fit runs in groups of neighbours
-constexpr std::size_t kMaxHiddenModes = 4;  // modes the residual rescan may add  // the estimation's limit (MorletCwtConfig accepts up to 1000)
+constexpr std::size_t kMaxHiddenModes = 4;  // modes the residual rescan may add  // the estimation's limit (MorletCwtConfig::fine_resolution)
 
 struct Peak {
   double f_hz = 0.0;
@@ -213,6 +213,7 @@ EnvelopeResult estimate_envelope(std::span<const double> x, double fs, double et
   MorletCwtConfig cfg;
   cfg.sample_rate_hz = fs;
   cfg.eta0 = eta0;
+  cfg.fine_resolution = true;
   cfg.frequencies_hz = {f_peak};
   cfg.max_samples = x.size();
   MorletCwt<double> cwt(cfg);
