@@ -1,5 +1,7 @@
 // `ridgewatch modes FILE`: identify every mode of one free response and print JSON on stdout.
+#include <algorithm>
 #include <cmath>
+#include <filesystem>
 #include <nlohmann/json.hpp>
 #include <ostream>
 #include <sstream>
@@ -7,6 +9,8 @@
 
 #include "cli/args.hpp"
 #include "cli/commands.hpp"
+#include "cli/plot_diagnosis.hpp"
+#include "cli/plot_modes.hpp"
 #include "cli/replay_flags.hpp"
 #include "core/dsp/modes.hpp"
 #include "drivers/replay_file.hpp"
@@ -65,9 +69,11 @@ std::string fmt(double v) { return nlohmann::ordered_json(v).dump(); }
 int run_modes(const std::vector<std::string>& argv, std::ostream& out, std::ostream& err) {
   const Args args(argv,
                   {"--channel", "--rate", "--fmin", "--fmax", "--max-modes", "--method", "--eta0",
-                   "--start", "--end", "--min-snr-db", "--voices"},
+                   "--start", "--end", "--min-snr-db", "--voices", "--plots"},
                   {"--all-methods"});
   const std::string& path = single_file(args);
+  std::filesystem::path plot_dir;
+  if (const auto d = args.value("--plots")) plot_dir = plots::prepare_dir(*d);
   const drivers::ReplayOptions ropt = replay_options(args);
 
   dsp::ModeSearchOptions opt;
@@ -141,6 +147,12 @@ int run_modes(const std::vector<std::string>& argv, std::ostream& out, std::ostr
     j["backbone_test"] = law_json(m.backbone);
     if (!m.note.empty()) j["note"] = m.note;
     doc["modes"].push_back(std::move(j));
+  }
+  if (!plot_dir.empty()) {
+    // The plots cover the analysed part (up to --end).
+    const std::span<const double> analysed(x.data(), std::min(x.size(), static_cast<std::size_t>(std::llround(r.end_s * fs))));
+    plots::write_all(plot_dir, "ridgewatch modes " + path, doc.dump(2, ' ', false, nlohmann::ordered_json::error_handler_t::replace),
+                     plots::mode_plots(analysed, fs, r));
   }
   // Invalid UTF-8 in a file name is replaced rather than aborting the output.
   out << doc.dump(-1, ' ', false, nlohmann::ordered_json::error_handler_t::replace) << "\n";

@@ -226,3 +226,26 @@ TEST(ModesCli, EndFlagAndNote) {
   ASSERT_TRUE(js.contains("note"));
   EXPECT_FALSE(js["note"].get<std::string>().empty());
 }
+
+// --plots DIR writes the three SVG files and an index page naming them; each SVG holds one entry per
+// mode (the ridge labels); an unwritable DIR is a usage error naming --plots.
+TEST(ModesCli, PlotsWriteScalogramEnvelopesAndBackbones) {
+  const auto dir = temp_file("plots");
+  fs::remove_all(dir);
+  const auto r = run_cli({"modes", kTable1, "--plots", dir.string()});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  for (const char* f : {"scalogram.svg", "envelopes.svg", "backbones.svg", "index.html"}) {
+    std::ifstream in(dir / f);
+    ASSERT_TRUE(in.good()) << f;
+    const std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    if (std::string(f).ends_with(".svg")) {
+      EXPECT_NE(text.find("<svg"), std::string::npos) << f;
+      for (const char* label : {"250.0 Hz", "500.1 Hz", "1250.0 Hz"}) EXPECT_NE(text.find(label), std::string::npos) << f << " " << label;
+    } else {
+      for (const char* svg : {"scalogram.svg", "envelopes.svg", "backbones.svg"}) EXPECT_NE(text.find(svg), std::string::npos);
+    }
+  }
+  const auto bad = run_cli({"modes", kTable1, "--plots", "/proc/forbidden/plots"});
+  EXPECT_EQ(bad.exit_code, 2);
+  EXPECT_NE(bad.err.find("--plots"), std::string::npos) << bad.err;
+}
