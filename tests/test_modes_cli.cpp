@@ -155,7 +155,12 @@ TEST(ModesCli, SilenceGivesNoModesNotACrash) {
 // is that the tool runs, reports finite frequencies inside the band, and never marks an estimate `ok`
 // when its two independent estimators disagree. Skips when ../shared is absent.
 TEST(ModesCli, RealPlateHitsAreHandledHonestly) {
-  for (const char* name : {"hit-2.wav", "hit-2-4.wav"}) {
+#ifdef RIDGEWATCH_SANITIZED
+  const std::vector<const char*> names = {"hit-2-4.wav"};  // sanitizer builds: one of the two
+#else
+  const std::vector<const char*> names = {"hit-2.wav", "hit-2-4.wav"};
+#endif
+  for (const char* name : names) {
     const std::string path = std::string(RIDGEWATCH_SHARED_DIR) + "/real-data/plate-hits/" + name;
     if (!fs::exists(path)) GTEST_SKIP() << "shared real-data not present";
     const auto r = run_cli({"modes", path, "--all-methods", "--eta0", "20"});
@@ -271,7 +276,13 @@ TEST(ModesCli, ClosePairInIndependentPcmAndFloatFiles) {
   const Fmt fmts[] = {{indep::SampleFormat::float32, 48000.0, 1.0, "pair-f32.wav"},
                       {indep::SampleFormat::pcm24, 44100.0, 4000.0, "pair-s24.wav"},
                       {indep::SampleFormat::pcm16, 44100.0, 4000.0, "pair-s16.wav"}};
-  for (const Fmt& fm : fmts) {
+#ifdef RIDGEWATCH_SANITIZED
+  const std::size_t n_fmts = 1;  // sanitizer builds: the float32 file only
+#else
+  const std::size_t n_fmts = std::size(fmts);
+#endif
+  for (std::size_t fi = 0; fi < n_fmts; ++fi) {
+    const Fmt& fm = fmts[fi];
     auto mode = [](double f, double zeta, double amplitude, double phase) {
       indep::Mode m;
       m.f_hz = f;
