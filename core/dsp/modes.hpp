@@ -1,19 +1,37 @@
 // Multi-mode identification of one free response (the paper's Section 3 procedure and numerical
 // example, Eq. 15-19), with better estimators than the two-point decrement:
 //
-//  1. CWT on a log-spaced frequency grid; the time-integrated energy of each row divided by the row's
-//     white-noise gain gives a spectrum in units of the noise floor. Its peaks are the modes
-//     (Eq. 15: linearity of the CWT separates the components); sub-bin position by a parabola in ln f.
-//  2. For each mode: phase slope of W along the row gives the damped frequency (unbiased); the row at
+//  1. Detection, independent of the band and eta0 the user asks for: CWTs at a ladder of resolutions
+//     (eta0 = 7, 20, 50; a row is used only where its kernel fits the record 16 times) over the whole
+//     usable band [auto f_min, 0.45 fs]. Per row, the time-integrated energy over the row's white-noise
+//     gain is a spectrum; the noise floor is what is noise: the lower quartile of each row's |W|^2 in
+//     time (where the row holds only noise, after the decays), then the 25 % quantile of those over
+//     +-1 octave of rows (robust to modes that outlast the record). Peaks standing min_peak_snr_db above
+//     the floor are modes (Eq. 15: linearity of the CWT separates the components); a peak at a coarse
+//     resolution that a finer one already resolved is the same mode.
+//  2. eta0 per mode from the data (Boltezar-Slavic / Staszewski): large enough that the nearest
+//     detected neighbour (Delta f away, r times stronger) leaks less than 1 % into the mode's row,
+//     eta0 >= x f / Delta f with x = sqrt(2 ln(100 max(1, r))) (the Gaussian filter's skirt); small enough
+//     that the edge effect (4 kernel widths) plus a 4-width window fit in the decay's usable length
+//     (until its envelope falls to end_snr times the noise) and the record. Where both cannot hold the
+//     time limit wins and the mode is marked as not resolved from its neighbour (the envelope estimators
+//     then read the signal with the neighbours' maximum-likelihood fits subtracted).
+//  3. For each mode: phase slope of W along the row gives the damped frequency (unbiased); the row at
 //     that frequency gives the wavelet envelope (Eq. 12), its window, the two-point (Eq. 17-19) and
-//     the ridge least-squares estimates.
-//  3. All modes are refined together by the maximum-likelihood fit of ml_fit.hpp.
+//     the ridge least-squares estimates, and the backbone (backbone.hpp).
+//  4. All modes in the band are refined together by the maximum-likelihood fit of ml_fit.hpp; a mode
+//     whose joint fit fails is refitted alone in a band around it.
+//  5. Status rules ("ok is a promise"): estimators that disagree beyond their uncertainties, a ridge
+//     whose frequency drifts within its window (it left the mode), zeta <= 0 or >= 1 (values null),
+//     a frequency outside the band: not ok, with a note.
 #pragma once
 
 #include <cstddef>
 #include <span>
+#include <string>
 #include <vector>
 
+#include "core/dsp/backbone.hpp"
 #include "core/dsp/damping.hpp"
 
 namespace ridgewatch::dsp {
@@ -21,27 +39,48 @@ namespace ridgewatch::dsp {
 struct ModeSearchOptions {
   double f_min_hz = 0.0;            ///< lowest mode frequency searched; <= 0: automatic (>= 20 Hz)
   double f_max_hz = 0.0;            ///< highest; <= 0: 0.45 fs
-  std::size_t max_modes = 8;        ///< the strongest K peaks are kept
+  std::size_t max_modes = 16;       ///< the strongest K peaks in the band are kept
   double min_peak_snr_db = 10.0;    ///< a peak must stand this far above the noise floor
-  double eta0 = 7.0;                ///< Morlet eta0 (Eq. 4)
+  double eta0 = 0.0;                ///< Morlet eta0 (Eq. 4) of the estimation; <= 0: chosen per mode
   std::size_t voices_per_octave = 32;
   DampingMethod method = DampingMethod::ml;
   /// Start of the free response in seconds from the record start; < 0: automatic (first sample whose
   /// magnitude reaches half the record's peak).
   double onset_s = -1.0;
+  /// End of the analysed part in seconds from the record start; <= 0: the record end.
+  double end_s = 0.0;
   EnvelopeOptions envelope;         ///< onset_s inside is ignored (set from the field above)
+  BackboneOptions backbone;
 };
 
 struct IdentifiedMode {
   DampingEstimate selected;  ///< the estimate of the requested method
   DampingEstimate two_point, ridge_ls, ml;
+  double eta0 = NAN;                 ///< eta0 used for this mode's envelope
+  double eta0_needed = NAN;          ///< eta0 that would separate it from its nearest neighbour
+  double neighbour_hz = NAN;         ///< nearest other detected peak (anywhere in the usable band)
+  bool resolved = true;              ///< eta0 >= eta0_needed (else neighbours were subtracted)
+  double detection_snr_db = NAN;     ///< peak of the energy spectrum over the noise floor
+  Backbone backbone;
+  std::string note;                  ///< why a status is not ok, when it is not
+};
+
+/// One detected spectral peak (all of them, also outside the band, for the eta0 choice and plots).
+struct DetectedPeak {
+  double f_hz = 0.0;
+  double snr_db = 0.0;  ///< energy spectrum over the noise floor
+  double eta0 = 0.0;    ///< resolution it was found at
 };
 
 struct ModeSearchResult {
   std::vector<IdentifiedMode> modes;  ///< sorted by frequency
   double onset_s = 0.0;
-  double noise_sd = 0.0;              ///< estimated noise standard deviation of the samples
+  double noise_sd = 0.0;              ///< noise standard deviation of the samples: the white-noise
+                                      ///< equivalent floor, median over the band
   double f_min_hz = 0.0, f_max_hz = 0.0;
+  double end_s = 0.0;                 ///< end of the analysed part
+  std::vector<DetectedPeak> peaks;    ///< every detected peak, sorted by frequency
+  std::string note;                   ///< when no mode was found: why
 };
 
 /// Throws std::invalid_argument for invalid options or a signal too short to analyse (< 64 samples).

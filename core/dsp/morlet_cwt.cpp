@@ -496,7 +496,10 @@ template <typename Real>
 MorletCwt<Real>::MorletCwt(MorletCwtConfig config) : impl_(std::make_unique<Impl>()) {
   auto& c = config;
   require(std::isfinite(c.sample_rate_hz) && c.sample_rate_hz > 0, "sample_rate_hz must be > 0");
-  require(std::isfinite(c.eta0) && c.eta0 >= 5.0 && c.eta0 <= 50.0, "eta0 must be in [5, 50]");
+  if (c.fine_resolution)
+    require(std::isfinite(c.eta0) && c.eta0 >= 5.0 && c.eta0 <= 1000.0, "eta0 must be in [5, 1000]");
+  else
+    require(std::isfinite(c.eta0) && c.eta0 >= 5.0 && c.eta0 <= 50.0, "eta0 must be in [5, 50]");
   require(!c.frequencies_hz.empty(), "frequencies_hz must not be empty");
   require(c.max_samples > 0, "max_samples must be > 0");
   require(c.max_samples < (std::size_t{1} << 30), "max_samples must be < 2^30");

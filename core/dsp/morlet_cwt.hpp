@@ -77,6 +77,9 @@ std::vector<double> make_frequency_grid(double f_min_hz, double f_max_hz, std::s
 struct MorletCwtConfig {
   double sample_rate_hz = 0.0;         ///< > 0, Hz
   double eta0 = 7.0;                   ///< Morlet centre frequency eta0 of Eq. (4); 5 <= eta0 <= 50
+  /// Allow 5 <= eta0 <= 1000 (mode identification: fine frequency resolution on long records; the
+  /// transform itself has no upper limit, the padding follows the kernel width).
+  bool fine_resolution = false;
   std::vector<double> frequencies_hz;  ///< analysis rows, each 0 < f < sample_rate_hz / 2
   std::size_t max_samples = 0;         ///< longest signal that will be transformed, > 0
   bool band_limited = false;           ///< decimated output (see header comment)
