@@ -43,6 +43,7 @@ constexpr Command kCommands[] = {
     {"simulate", ridgewatch::cli::run_simulate},
     {"compare", ridgewatch::cli::run_compare},
     {"diagnose", ridgewatch::cli::run_diagnose},
+    {"survey", ridgewatch::cli::run_survey},
 };
 
 }  // namespace

@@ -1,0 +1,65 @@
+#include "core/survey/kurtogram.hpp"
+
+#include <cmath>
+
+namespace ridgewatch::survey {
+
+double spectral_kurtosis(const std::vector<std::complex<double>>& c) {
+  if (c.size() < 8) return NAN;
+  double s2 = 0, s4 = 0;
+  for (const auto& v : c) {
+    const double p = std::norm(v);
+    s2 += p;
+    s4 += p * p;
+  }
+  const double n = static_cast<double>(c.size());
+  if (!(s2 > 0)) return NAN;
+  return (s4 / n) / ((s2 / n) * (s2 / n)) - 2.0;
+}
+
+Kurtogram fast_kurtogram(const RecordSpectrum& spectrum, const KurtogramOptions& options) {
+  Kurtogram k;
+  const double fs = spectrum.sample_rate_hz();
+  const double nyq = fs / 2;
+  const double t_rec = static_cast<double>(spectrum.samples()) / fs;
+  const double f_max = options.f_max_hz > 0 ? std::min(options.f_max_hz, nyq) : nyq;
+  const double min_bw = options.min_bandwidth_hz > 0 ? options.min_bandwidth_hz
+                                                      : std::max(fs / 2048.0, 100.0 / t_rec);
+  double best_sk = -INFINITY;
+  k.best = static_cast<std::size_t>(-1);
+  for (int l = 1;; ++l) {
+    bool any = false;
+    // Level l (2^l bands), then level l + 0.6 (3 * 2^(l-1) bands).
+    for (int third = 0; third < 2; ++third) {
+      const double bands = third ? 3.0 * std::ldexp(1.0, l - 1) : std::ldexp(1.0, l);
+      const double bw = nyq / bands;
+      if (bw < min_bw) continue;
+      any = true;
+      const double level = third ? l + std::log2(3.0) - 1.0 : l;
+      k.levels.push_back(level);
+      for (int b = 0; b < static_cast<int>(bands); ++b) {
+        KurtogramCell cell;
+        cell.level = level;
+        cell.f_lo_hz = b * bw;
+        cell.f_hi_hz = (b + 1) * bw;
+        double rate = 0;
+        const auto c = spectrum.envelope(cell.f_lo_hz, cell.f_hi_hz, 1.0, rate);
+        cell.kurtosis = spectral_kurtosis(c);
+        cell.independent_samples = t_rec * bw;
+        cell.z = cell.kurtosis * std::sqrt(cell.independent_samples) / 2.0;
+        const bool candidate = cell.f_lo_hz >= options.f_min_hz * 0.999 && cell.f_hi_hz <= f_max * 1.001 &&
+                               cell.independent_samples >= options.min_independent && std::isfinite(cell.kurtosis);
+        if (candidate && cell.kurtosis > best_sk) {
+          best_sk = cell.kurtosis;
+          k.best = k.cells.size();
+        }
+        k.cells.push_back(cell);
+      }
+    }
+    if (!any) break;
+  }
+  if (k.best == static_cast<std::size_t>(-1)) k.best = k.cells.size();
+  return k;
+}
+
+}  // namespace ridgewatch::survey
