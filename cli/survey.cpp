@@ -54,7 +54,8 @@ json to_json(const survey::SurveyResult& r, const std::string& name) {
   band["hi_hz"] = num(r.band_hi_hz);
   band["kurtosis"] = num(r.band_kurtosis);
   band["z"] = num(r.band_z);
-  if (r.kurtogram.has_best()) band["level"] = r.kurtogram.cells[r.kurtogram.best].level;
+  for (const auto& c : r.kurtogram.cells)
+    if (c.f_lo_hz == r.band_lo_hz && c.f_hi_hz == r.band_hi_hz) band["level"] = c.level;
   j["band"] = band;
   json cells = json::array();
   for (const auto& c : r.kurtogram.cells) cells.push_back({c.level, c.f_lo_hz, c.f_hi_hz, num(c.kurtosis)});
@@ -96,7 +97,7 @@ std::string text_report(const survey::SurveyResult& r, const std::string& name) 
   std::ostringstream o;
   o << "survey: " << name << ": " << f3(r.sample_rate_hz, 6) << " Hz, " << f3(static_cast<double>(r.samples) / r.sample_rate_hz)
     << " s, " << r.spikes_removed << " spikes removed\n";
-  o << "band where bursts ring (fast kurtogram): " << f3(r.band_lo_hz, 5) << " - " << f3(r.band_hi_hz, 5)
+  o << "band of the periodic bursts (fast kurtogram): " << f3(r.band_lo_hz, 5) << " - " << f3(r.band_hi_hz, 5)
     << " Hz, spectral kurtosis " << f3(r.band_kurtosis, 3) << " (z " << f3(r.band_z, 3) << ")\n";
   if (std::isfinite(r.period_s)) {
     o << "band-envelope period: " << f3(r.period_s * 1e3) << " ms (" << f3(r.rate_hz) << " per second), autocorrelation "

@@ -1,20 +1,32 @@
 #include "core/survey/kurtogram.hpp"
 
+#include <algorithm>
 #include <cmath>
 
 namespace ridgewatch::survey {
 
-double spectral_kurtosis(const std::vector<std::complex<double>>& c) {
+double spectral_kurtosis(const std::vector<std::complex<double>>& c, std::size_t block) {
   if (c.size() < 8) return NAN;
-  double s2 = 0, s4 = 0;
-  for (const auto& v : c) {
-    const double p = std::norm(v);
-    s2 += p;
-    s4 += p * p;
+  if (block < 8 || block > c.size()) block = c.size();
+  double sum = 0;
+  std::size_t blocks = 0;
+  for (std::size_t b0 = 0; b0 + block / 2 <= c.size() || b0 == 0; b0 += block) {
+    const std::size_t b1 = std::min(c.size(), b0 + block);
+    double s2 = 0, s4 = 0;
+    for (std::size_t i = b0; i < b1; ++i) {
+      const double p = std::norm(c[i]);
+      s2 += p;
+      s4 += p * p;
+    }
+    const double n = static_cast<double>(b1 - b0);
+    if (s2 > 0) {
+      sum += (s4 / n) / ((s2 / n) * (s2 / n));
+      ++blocks;
+    }
+    if (b1 == c.size()) break;
   }
-  const double n = static_cast<double>(c.size());
-  if (!(s2 > 0)) return NAN;
-  return (s4 / n) / ((s2 / n) * (s2 / n)) - 2.0;
+  if (blocks == 0) return NAN;
+  return sum / static_cast<double>(blocks) - 2.0;
 }
 
 Kurtogram fast_kurtogram(const RecordSpectrum& spectrum, const KurtogramOptions& options) {
@@ -24,7 +36,7 @@ Kurtogram fast_kurtogram(const RecordSpectrum& spectrum, const KurtogramOptions&
   const double t_rec = static_cast<double>(spectrum.samples()) / fs;
   const double f_max = options.f_max_hz > 0 ? std::min(options.f_max_hz, nyq) : nyq;
   const double min_bw = options.min_bandwidth_hz > 0 ? options.min_bandwidth_hz
-                                                      : std::max(fs / 2048.0, 100.0 / t_rec);
+                                                      : std::max({fs / 2048.0, 100.0 / t_rec, 100.0});
   double best_sk = -INFINITY;
   k.best = static_cast<std::size_t>(-1);
   for (int l = 1;; ++l) {
@@ -44,7 +56,7 @@ Kurtogram fast_kurtogram(const RecordSpectrum& spectrum, const KurtogramOptions&
         cell.f_hi_hz = (b + 1) * bw;
         double rate = 0;
         const auto c = spectrum.envelope(cell.f_lo_hz, cell.f_hi_hz, 1.0, rate);
-        cell.kurtosis = spectral_kurtosis(c);
+        cell.kurtosis = spectral_kurtosis(c, static_cast<std::size_t>(std::lround(kBlockS * rate)));
         cell.independent_samples = t_rec * bw;
         cell.z = cell.kurtosis * std::sqrt(cell.independent_samples) / 2.0;
         const bool candidate = cell.f_lo_hz >= options.f_min_hz * 0.999 && cell.f_hi_hz <= f_max * 1.001 &&

@@ -6,8 +6,10 @@
 //  0. Despiking: isolated one-sample outliers (residual of the 4-neighbour cubic interpolation beyond
 //     12 MAD while the neighbours, corrected for it, stay below) are replaced by the interpolation, so
 //     a sensor's spikes do not masquerade as impulsive energy in every band.
-//  1. Fast kurtogram (kurtogram.hpp): the band with the largest spectral kurtosis, with its z against
-//     Gaussian noise.
+//  1. Fast kurtogram (kurtogram.hpp): up to 8 candidate bands with z >= 8 in decreasing spectral
+//     kurtosis, each from its own part of the spectrum; steps 2-3 run on each, and the band whose
+//     envelope forms the most periodic impact train (largest r(T) among those passing the train
+//     tests of step 5) is kept, else the largest-SK band.
 //  2. Band envelope e = |c|^2 of that band (band_envelope.hpp), averaged into bins of ~0.25 ms:
 //     its normalised autocorrelation r(tau) over lags 1/max_rate .. min(1/min_rate, T/2.5), the
 //     highest peak (or its shortest sub-multiple standing >= 70 % as high) is the impact period;
@@ -18,7 +20,9 @@
 //     spread in % of it.
 //  4. Free responses: for up to 24 impacts spread over the record, the raw samples from just after
 //     the band envelope's peak to just before the next impact go to dsp::identify_modes (the modes
-//     command's analysis) in the kurtogram band widened by 1.5x each way. Modes of all segments are
+//     command's analysis) over the whole searched range [f_min, f_max] (not only the kurtogram band:
+//     an impact's onset is a broadband click, so the sharpest bursts can lie well away from the
+//     resonance, and the ringing mode is the decaying one). Modes of all segments are
 //     clustered (+-1.5 % in f); the cluster found in the most segments with status ok is the
 //     ringing mode: median f, median zeta and the zeta quartiles. Other clusters found in >= half
 //     the segments are listed as further modes.
@@ -53,8 +57,8 @@
 namespace ridgewatch::survey {
 
 struct SurveyOptions {
-  double f_min_hz = 100;       ///< lowest band edge considered by the kurtogram
-  double f_max_hz = 0;         ///< highest; <= 0: fs / 2
+  double f_min_hz = 100;       ///< lowest band edge considered by the kurtogram and the mode search
+  double f_max_hz = 0;         ///< highest; <= 0: fs / 2 (kurtogram), 0.45 fs (modes)
   double min_rate_hz = 0.2;    ///< slowest impact rate searched (lag up to 1/min_rate, and <= T / 2.5)
   double max_rate_hz = 250;    ///< fastest
   std::size_t max_segments = 24;  ///< free responses analysed by identify_modes
