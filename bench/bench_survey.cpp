@@ -11,6 +11,8 @@
 #include <iostream>
 #include <string>
 
+#include <unistd.h>
+
 #include "bench/survey_cases.hpp"
 #include "core/survey/survey.hpp"
 
@@ -43,7 +45,7 @@ void print(const survey_cases::Case& c, const survey_cases::Outcome& o) {
 }
 
 int sweep_mode(int seeds) {
-  const std::string dir = std::filesystem::temp_directory_path() / "bench_survey";
+  const std::string dir = std::filesystem::temp_directory_path() / ("bench_survey-" + std::to_string(getpid()));
   std::filesystem::create_directories(dir);
   const double rates_fs[] = {25600, 44100, 48000, 51200};
   const double fns[] = {300, 854, 2500, 8000};
@@ -119,7 +121,7 @@ int main(int argc, char** argv) {
       if (std::string(argv[i]) == "none") c.impacts = false;
     }
     c.duration_s = std::max(6.0, 40.0 / c.rate_hz);
-    const std::string dir = std::filesystem::temp_directory_path() / "bench_survey";
+    const std::string dir = std::filesystem::temp_directory_path() / ("bench_survey-" + std::to_string(getpid()));
     std::filesystem::create_directories(dir);
     const auto o = survey_cases::run_case(c, dir);
     std::cout << o.survey_text.substr(0, 0);

@@ -3,13 +3,18 @@
 #include <spdlog/sinks/stdout_sinks.h>
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
+#include <cmath>
 #include <cstdlib>
+#include <optional>
+#include <span>
 #include <iostream>
 #include <string>
 #include <vector>
 
 #include "cli/args.hpp"
 #include "cli/config_yaml.hpp"
+#include "cli/survey.hpp"
 #include "daemon/daemon.hpp"
 #include "drivers/sample_source.hpp"
 #include "ridgewatch_version.hpp"
@@ -23,6 +28,8 @@ constexpr const char* kUsage =
     "usage: ridgewatchd [--config FILE] [--replay FILE] [--speed max|N] [--loop] [--channel N]\n"
     "                   [--events PATH|-] [--csv PATH] [--capture-dir DIR] [--log-level LEVEL]\n"
     "                   [--max-samples N]   (stop after N input samples, e.g. for soak runs)\n"
+    "       ridgewatchd [--config FILE] [--replay FILE] --survey SECONDS [--write-config OUT.yaml]\n"
+    "                   (record SECONDS from the configured source, run `ridgewatch survey` on it, exit)\n"
     "       ridgewatchd --check-config FILE | --print-defaults | --version | --help\n"
     "signals: TERM/INT finish the impact in progress, flush and exit 0; HUP reloads the configuration\n"
     "         (a bad one is rejected, the old one kept) and reopens the output files; USR1 resets a\n"
@@ -57,10 +64,37 @@ void setup_logging(const std::string& level) {
   spdlog::set_default_logger(logger);
 }
 
+// --survey SECONDS: record that long from the configured source (nothing else is started: no event
+// log, no relays, no notification) and print the survey of cli/survey.hpp; --write-config OUT merges
+// the proposal into a copy of --config (or of the defaults).
+int run_survey_mode(const cli::Args& args, const cli::RidgewatchConfig& config, const std::optional<std::string>& config_path) {
+  const double seconds = args.number("--survey", 0.0, 0.5, 3600.0);
+  cli::SurveyOutput output;
+  output.write_config = args.value("--write-config");
+  output.base_config = config_path;
+  cli::check_survey_output(output);
+  auto source = ridgewatch::daemon::open_source(config.source);
+  const double fs = source->info().sample_rate_hz;
+  const auto want = static_cast<std::size_t>(std::llround(seconds * fs));
+  std::vector<double> x;
+  x.reserve(want);
+  std::vector<double> block(4096);
+  while (x.size() < want) {
+    const std::size_t n = source->read(std::span<double>(block.data(), std::min(block.size(), want - x.size())));
+    if (n == 0) break;
+    x.insert(x.end(), block.begin(), block.begin() + static_cast<std::ptrdiff_t>(n));
+  }
+  if (x.size() < want)
+    std::cerr << "ridgewatchd: survey: the source ended after " << static_cast<double>(x.size()) / fs << " s of the "
+              << seconds << " s asked for\n";
+  if (x.size() < 64) throw ridgewatch::drivers::InputError(source->info().name + ": too few samples for a survey");
+  return cli::survey_and_report(x, fs, source->info().name, {}, output, std::cout, std::cerr);
+}
+
 int run(const std::vector<std::string>& argv) {
   const cli::Args args(argv,
                        {"--config", "--replay", "--speed", "--channel", "--events", "--csv", "--capture-dir",
-                        "--log-level", "--check-config", "--max-samples"},
+                        "--log-level", "--check-config", "--max-samples", "--survey", "--write-config"},
                        {"--print-defaults", "--version", "--help", "--loop"});
   if (!args.positional().empty()) throw cli::UsageError("unexpected argument '" + args.positional().front() + "'");
   if (args.has("--help")) {
@@ -113,6 +147,9 @@ int run(const std::vector<std::string>& argv) {
   if (const auto lvl = args.value("--log-level");
       lvl && *lvl != "trace" && *lvl != "debug" && *lvl != "info" && *lvl != "warn" && *lvl != "error")
     throw cli::UsageError("--log-level: '" + *lvl + "' is not one of trace, debug, info, warn, error");
+
+  if (args.has("--survey")) return run_survey_mode(args, config, config_path);
+  if (args.has("--write-config")) throw cli::UsageError("--write-config: only with --survey SECONDS");
 
   setup_logging(config.logging.level);
   install_signal_handlers();

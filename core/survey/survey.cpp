@@ -178,18 +178,40 @@ BandTrain analyse_band(const RecordSpectrum& spectrum, double f_lo, double f_hi,
   t.fa = fa;
   if (e.size() < 16) return t;
   const double e_mean = std::accumulate(e.begin(), e.end(), 0.0) / static_cast<double>(e.size());
-  std::vector<double> ec(e.size());
-  for (std::size_t i = 0; i < e.size(); ++i) ec[i] = e[i] - e_mean;
-  std::vector<double> power, acf;
-  spectrum_and_acf(ec, power, acf);
+  // Autocorrelation of the envelope smoothed by a boxcar matched to the lag: the impacts' timing
+  // wanders with the speed (a +-5 % variation spreads the pairs at lag tau over +-5 % of tau), and
+  // short clicks then overlap only at the period of the wander (measured: an 842 ms "period" for a
+  // 5/s train under a 1 s wobble). Lag tau in [10 w_j, 20 w_j) is read from the envelope smoothed over
+  // w_j = w_0 2^j, w_0 = 0.6 / max_rate (4 ms at 150/s; j = 0 also covers the shortest lags): a
+  // smoothing of 5-10 % of the lag.
   const std::size_t L = e.size();
-  const double a0 = acf[0] > 0 ? acf[0] : 1.0;
   const auto k_min = static_cast<std::size_t>(std::max(2.0, std::ceil(fa / opt.max_rate_hz)));
   const auto k_max = static_cast<std::size_t>(std::min({std::floor(fa / opt.min_rate_hz), std::floor(t_rec / 2.5 * fa),
                                                         static_cast<double>(L) - 2}));
-  t.acf.resize(std::min(L, k_max + 2));
-  for (std::size_t k = 0; k < t.acf.size(); ++k)
-    t.acf[k] = acf[k] / a0 * static_cast<double>(L) / static_cast<double>(L - k);  // unbiased
+  t.acf.assign(std::min(L, k_max + 2), 0.0);
+  std::vector<double> power;
+  const double w0 = 0.6 / opt.max_rate_hz;
+  for (int j = 0;; ++j) {
+    const double w = w0 * std::ldexp(1.0, j);
+    const auto k_lo = j == 0 ? std::size_t{0} : static_cast<std::size_t>(std::ceil(10 * w * fa));
+    const auto k_hi = std::min(t.acf.size(), static_cast<std::size_t>(std::ceil(20 * w * fa)));
+    if (k_lo >= t.acf.size()) break;
+    const auto box = std::max<std::size_t>(1, static_cast<std::size_t>(std::lround(w * fa)));
+    std::vector<double> ec(L);
+    double run = 0;
+    for (std::size_t i = 0; i < L; ++i) {
+      run += e[i] - e_mean;
+      if (i >= box) run -= e[i - box] - e_mean;
+      ec[i] = run / static_cast<double>(std::min(i + 1, box));
+    }
+    std::vector<double> pw, acf;
+    spectrum_and_acf(ec, pw, acf);
+    if (j == 0) power = std::move(pw);
+    const double a0 = acf[0] > 0 ? acf[0] : 1.0;
+    // One extra lag each side so that local maxima at a range edge compare like with like.
+    for (std::size_t k = k_lo; k < std::min(t.acf.size(), k_hi); ++k)
+      t.acf[k] = acf[k] / a0 * static_cast<double>(L) / static_cast<double>(L - k);  // unbiased
+  }
   std::size_t lag = 0;
   if (k_max > k_min + 2) {
     double r_best = -INFINITY;
@@ -200,7 +222,8 @@ BandTrain analyse_band(const RecordSpectrum& spectrum, double f_lo, double f_hi,
         lag = k;
       }
     }
-    // The shortest sub-multiple standing >= 70 % as high (a regular train peaks at every multiple).
+    // The shortest sub-multiple standing >= 40 % as high (a regular train peaks at every multiple; a
+    // wandering one highest at the wander's period). A wrong sub-multiple fails the interval test.
     if (lag > 0) {
       for (std::size_t q = 8; q >= 2; --q) {
         const double target = static_cast<double>(lag) / static_cast<double>(q);
@@ -214,7 +237,7 @@ BandTrain analyse_band(const RecordSpectrum& spectrum, double f_lo, double f_hi,
             rq = t.acf[k];
             kq = k;
           }
-        if (kq > 0 && rq >= 0.7 * r_best) {
+        if (kq > 0 && rq >= 0.4 * r_best) {
           lag = kq;
           break;
         }
@@ -260,7 +283,7 @@ BandTrain analyse_band(const RecordSpectrum& spectrum, double f_lo, double f_hi,
   const double p_med = median(heights);
   std::vector<std::size_t> imp;
   for (std::size_t i : peaks)
-    if (e[i] >= 0.25 * p_med) imp.push_back(i);
+    if (e[i] >= 0.1 * p_med) imp.push_back(i);
   std::sort(imp.begin(), imp.end());
   std::vector<double> imp_heights;
   for (std::size_t i : imp) imp_heights.push_back(e[i]);
@@ -325,9 +348,9 @@ SurveyResult run_survey(std::span<const double> input, double fs, const SurveyOp
   };
   if (!res.kurtogram.has_best()) return fail("no kurtogram band fits the record (too short for a 100-sample envelope)");
   // Candidates: the kurtogram's cells with z >= kMinZ in decreasing SK, at most 8, each from its own
-  // part of the spectrum (centres further apart than the two bandwidths). The band is the candidate
-  // whose envelope forms the most periodic impact train (largest r(T) among those passing the train
-  // tests), else the largest SK. (A large SK alone can come from a line swept through a narrow band by
+  // part of the spectrum (centres further apart than the two bandwidths). The band is the first
+  // (largest SK) whose envelope forms a periodic impact train (passes the train tests of step 5), else
+  // the largest SK. (A large SK alone can come from a line swept through a narrow band by
   // the speed variation, or from a single knock; the envelope's periodicity separates them.)
   std::vector<std::size_t> order;
   for (std::size_t i = 0; i < res.kurtogram.cells.size(); ++i) {
@@ -358,7 +381,7 @@ SurveyResult run_survey(std::span<const double> input, double fs, const SurveyOp
   for (std::size_t k = 1; k < cands.size(); ++k) {
     const auto& cell = res.kurtogram.cells[cands[k]];
     BandTrain t2 = analyse_band(spectrum, cell.f_lo_hz, cell.f_hi_hz, t_rec, opt);
-    if (t2.train() && (!tr.train() || t2.acf_peak > tr.acf_peak)) {
+    if (t2.train() && !tr.train()) {
       tr = std::move(t2);
       chosen_cell = cands[k];
     }

@@ -7,14 +7,16 @@
 //     12 MAD while the neighbours, corrected for it, stay below) are replaced by the interpolation, so
 //     a sensor's spikes do not masquerade as impulsive energy in every band.
 //  1. Fast kurtogram (kurtogram.hpp): up to 8 candidate bands with z >= 8 in decreasing spectral
-//     kurtosis, each from its own part of the spectrum; steps 2-3 run on each, and the band whose
-//     envelope forms the most periodic impact train (largest r(T) among those passing the train
-//     tests of step 5) is kept, else the largest-SK band.
+//     kurtosis, each from its own part of the spectrum; steps 2-3 run on each, and the first band whose
+//     envelope forms a periodic impact train (the train tests of step 5) is kept, else the
+//     largest-SK band.
 //  2. Band envelope e = |c|^2 of that band (band_envelope.hpp), averaged into bins of ~0.25 ms:
 //     its normalised autocorrelation r(tau) over lags 1/max_rate .. min(1/min_rate, T/2.5), the
-//     highest peak (or its shortest sub-multiple standing >= 70 % as high) is the impact period;
+//     highest peak of the envelope smoothed over 0.6 / max_rate (or its shortest sub-multiple standing
+//     >= 40 % as high) is the impact period;
 //     the envelope spectrum (|DFT of e - mean|) shows the rate and its harmonics.
-//  3. Impacts: maxima of e that dominate +-0.45 periods and exceed a quarter of the median maximum;
+//  3. Impacts: maxima of e that dominate +-0.45 periods and exceed a tenth of the median maximum (onset clicks vary 2-fold in
+//     amplitude with their position between samples);
 //     the median peak over the envelope median (the contrast). Intervals within 25 % of the period are
 //     regular; the period is refined to their median, the speed variation is half their 5-95 %
 //     spread in % of it.
@@ -60,7 +62,7 @@ struct SurveyOptions {
   double f_min_hz = 100;       ///< lowest band edge considered by the kurtogram and the mode search
   double f_max_hz = 0;         ///< highest; <= 0: fs / 2 (kurtogram), 0.45 fs (modes)
   double min_rate_hz = 0.2;    ///< slowest impact rate searched (lag up to 1/min_rate, and <= T / 2.5)
-  double max_rate_hz = 250;    ///< fastest
+  double max_rate_hz = 150;    ///< fastest (also sets the envelope smoothing for the autocorrelation)
   std::size_t max_segments = 24;  ///< free responses analysed by identify_modes
   /// Shaft speed (Hz) of a rig description, for the order of the impact rate; <= 0: unknown.
   double shaft_hz = 0;
