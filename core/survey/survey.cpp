@@ -283,7 +283,7 @@ BandTrain analyse_band(const RecordSpectrum& spectrum, double f_lo, double f_hi,
   const double p_med = median(heights);
   std::vector<std::size_t> imp;
   for (std::size_t i : peaks)
-    if (e[i] >= 0.1 * p_med) imp.push_back(i);
+    if (e[i] >= 0.2 * p_med) imp.push_back(i);
   std::sort(imp.begin(), imp.end());
   std::vector<double> imp_heights;
   for (std::size_t i : imp) imp_heights.push_back(e[i]);
@@ -407,24 +407,33 @@ SurveyResult run_survey(std::span<const double> input, double fs, const SurveyOp
                      fmt(opt.max_rate_hz) + " impacts per second");
     return res;
   }
-  res.acf_peak = tr.acf_peak;
-  res.period_s = tr.period_s;
-  res.rate_hz = tr.rate_hz;
-  res.contrast = tr.contrast;
-  res.regular_fraction = tr.regular_fraction;
-  res.speed_variation_pct = tr.speed_variation_pct;
-  res.impact_times_s = tr.impact_times_s;
-  res.envelope_spectrum_hz = tr.envelope_spectrum_hz;
-  res.envelope_spectrum = tr.envelope_spectrum;
-  check(res.acf_peak >= kMinAcf, "band-envelope autocorrelation at the period " + fmt(res.period_s * 1e3, 4) +
-                                     " ms is " + fmt(res.acf_peak) + " (need >= " + fmt(kMinAcf) + ": periodic bursts)");
-  if (opt.shaft_hz > 0) res.shaft_order = res.rate_hz / opt.shaft_hz;
-  check(res.contrast >= kMinContrast, "impact envelope peaks stand " + fmt(10 * std::log10(res.contrast)) +
-                                          " dB over the envelope median (need >= 10 dB)");
-  check(res.impact_times_s.size() >= kMinImpacts && res.regular_fraction >= kMinRegular,
-        std::to_string(res.impact_times_s.size()) + " impacts, " + fmt(100 * res.regular_fraction) +
-            " % of the intervals within 25 % of the period (need >= " + std::to_string(kMinImpacts) + " and >= " +
-            fmt(100 * kMinRegular) + " %)");
+  std::size_t train_evidence = 0;  // index of the train tests' first evidence line
+  auto adopt = [&](const BandTrain& t, const std::string& where) {
+    res.acf_peak = t.acf_peak;
+    res.period_s = t.period_s;
+    res.rate_hz = t.rate_hz;
+    res.contrast = t.contrast;
+    res.regular_fraction = t.regular_fraction;
+    res.speed_variation_pct = t.speed_variation_pct;
+    res.impact_times_s = t.impact_times_s;
+    res.envelope_spectrum_hz = t.envelope_spectrum_hz;
+    res.envelope_spectrum = t.envelope_spectrum;
+    res.acf = t.acf;
+    res.envelope_rate_hz = t.fa;
+    train_evidence = res.evidence.size();
+    check(res.acf_peak >= kMinAcf, "band-envelope autocorrelation" + where + " at the period " +
+                                       fmt(res.period_s * 1e3, 4) + " ms is " + fmt(res.acf_peak) + " (need >= " +
+                                       fmt(kMinAcf) + ": periodic bursts)");
+    check(res.contrast >= kMinContrast, "impact envelope peaks" + where + " stand " +
+                                            fmt(10 * std::log10(res.contrast)) + " dB over the envelope median (need >= 10 dB)");
+    check(res.impact_times_s.size() >= kMinImpacts && res.regular_fraction >= kMinRegular,
+          std::to_string(res.impact_times_s.size()) + " impacts" + where + ", " + fmt(100 * res.regular_fraction) +
+              " % of the intervals within 25 % of the period (need >= " + std::to_string(kMinImpacts) + " and >= " +
+              fmt(100 * kMinRegular) + " %)");
+    if (opt.shaft_hz > 0) res.shaft_order = res.rate_hz / opt.shaft_hz;
+  };
+  adopt(tr, "");
+  std::vector<double> final_regular = tr.regular;
   const std::vector<double>& e = tr.e;
   const std::size_t L = e.size();
   const double fa = tr.fa;
@@ -551,6 +560,25 @@ SurveyResult run_survey(std::span<const double> input, double fs, const SurveyOp
                                    std::to_string(res.segments_analysed) + " free responses after the impacts"
                              : "no decaying mode common to >= half (and >= 3) of the " +
                                    std::to_string(res.segments_analysed) + " free responses after the bursts");
+  // Second look, in the band of the ringing mode itself (the proposal's detector band, +-15 %), when
+  // the kurtogram band's train failed: that band can hold onset clicks or a mode's far skirt whose
+  // peaks are less regular than the ringing (measured: a 300 Hz mode seen through 344-459 Hz at 10 dB,
+  // 51 "impacts" for 40).
+  if (have_mode && !tr.train()) {
+    const double fm = res.modes[0].f_hz;
+    const BandTrain t2 = analyse_band(spectrum, 0.85 * fm, std::min(1.15 * fm, 0.5 * fs), t_rec, opt);
+    if (t2.train()) {
+      res.evidence.erase(res.evidence.begin() + static_cast<std::ptrdiff_t>(train_evidence),
+                         res.evidence.begin() + static_cast<std::ptrdiff_t>(train_evidence) + 3);
+      const auto mode_line = res.evidence.back();
+      res.evidence.pop_back();
+      adopt(t2, " in the mode's band " + fmt(0.85 * fm, 5) + "-" + fmt(1.15 * fm, 5) + " Hz");
+      res.evidence.push_back(mode_line);
+      final_regular = t2.regular;
+      pass = true;
+      for (const auto& line : res.evidence) pass = pass && line.rfind("pass: ", 0) == 0;
+    }
+  }
   res.impacts_found = pass;
   if (!pass) return res;
 
@@ -601,7 +629,7 @@ SurveyResult run_survey(std::span<const double> input, double fs, const SurveyOp
                       }() + " Hz)");
   p.detector.band_lo_hz = std::round(lo * 10) / 10;
   p.detector.band_hi_hz = std::max(std::round(hi * 10) / 10, p.detector.band_lo_hz + 2.0);
-  const double t_min = regular.empty() ? res.period_s : quantile(regular, 0.05);
+  const double t_min = final_regular.empty() ? res.period_s : quantile(final_regular, 0.05);
   p.detector.holdoff_s = 0.5 * t_min;
   p.analyzer.f_expected_hz = f;
   double band_rel = 0.3;

@@ -15,7 +15,7 @@
 //     highest peak of the envelope smoothed over 0.6 / max_rate (or its shortest sub-multiple standing
 //     >= 40 % as high) is the impact period;
 //     the envelope spectrum (|DFT of e - mean|) shows the rate and its harmonics.
-//  3. Impacts: maxima of e that dominate +-0.45 periods and exceed a tenth of the median maximum (onset clicks vary 2-fold in
+//  3. Impacts: maxima of e that dominate +-0.45 periods and exceed a fifth of the median maximum (onset clicks vary 2-fold in
 //     amplitude with their position between samples);
 //     the median peak over the envelope median (the contrast). Intervals within 25 % of the period are
 //     regular; the period is refined to their median, the speed variation is half their 5-95 %
