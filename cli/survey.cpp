@@ -79,6 +79,7 @@ json to_json(const survey::SurveyResult& r, const std::string& name) {
   j["segments_analysed"] = r.segments_analysed;
   j["decay_left_at_next_impact"] = num(r.decay_per_period);
   j["lines_hz"] = r.line_hz;
+  j["mean_envelope"] = {{"rate_hz", num(r.envelope_rate_hz)}, {"values", r.mean_envelope}};
   if (r.proposal) {
     const auto& p = *r.proposal;
     json d = {{"band_lo_hz", p.detector.band_lo_hz}, {"band_hi_hz", p.detector.band_hi_hz},

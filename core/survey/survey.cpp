@@ -296,6 +296,7 @@ BandTrain analyse_band(const RecordSpectrum& spectrum, double f_lo, double f_hi,
     t_imp.push_back(time_of(static_cast<double>(i) + off));
   }
   t.impact_times_s = t_imp;
+  t.imp = imp;
   std::vector<double>& regular = t.regular;
   std::vector<char>& next_regular = t.next_regular;
   next_regular.assign(t_imp.size(), 0);
