@@ -78,6 +78,7 @@ json to_json(const survey::SurveyResult& r, const std::string& name) {
   j["modes"] = modes;
   j["segments_analysed"] = r.segments_analysed;
   j["decay_left_at_next_impact"] = num(r.decay_per_period);
+  j["trigger_headroom"] = num(r.trigger_headroom);
   j["lines_hz"] = r.line_hz;
   j["mean_envelope"] = {{"rate_hz", num(r.envelope_rate_hz)}, {"values", r.mean_envelope}};
   if (r.proposal) {

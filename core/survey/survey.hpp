@@ -37,7 +37,9 @@
 //       detector band f (1 +- 0.15), each edge pulled in to halfway to the nearest stationary line
 //         (peaks of the power spectrum of the quiet ends of the intervals, >= 10 dB over the local
 //         floor, widened by the speed variation) within f (1 +- 0.3), at least f (1 +- 0.03);
-//       trigger_ratio 8 (the default), holdoff_s = 0.5 x the shortest regular interval;
+//       trigger_ratio = min(8 (the default), half the impacts' median STA peak over the detector's
+//         capped long-term mean in that band), at least 3; holdoff_s = 0.5 x the shortest regular
+//         interval;
 //       f_expected_hz = the mode's f; band_rel = 0.3, reduced to 0.6 x the relative distance of a
 //         further mode inside it (so the ridge cannot jump to it); ml_band_rel = min(0.12, band_rel,
 //         0.6 x the relative distance of the nearest line);
@@ -109,6 +111,8 @@ struct SurveyResult {
   std::size_t segments_analysed = 0;
   std::vector<ModeCluster> modes;         ///< modes[0] the ringing mode, then further ones
   double decay_per_period = NAN;          ///< envelope left at the next impact, exp(-2 pi f zeta T)
+  /// Median STA peak of the impacts over the detector's capped long-term mean in the proposed band.
+  double trigger_headroom = NAN;
   /// Averaged band envelope after the impacts (aligned at the envelope peak), for the plot; time of
   /// sample k is k / envelope_rate_hz after the peak; normalised to 1 at the peak.
   std::vector<double> mean_envelope;
