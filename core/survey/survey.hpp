@@ -20,9 +20,10 @@
 //     the median peak over the envelope median (the contrast). Intervals within 25 % of the period are
 //     regular; the period is refined to their median, the speed variation is half their 5-95 %
 //     spread in % of it.
-//  4. Free responses: for up to 24 impacts spread over the record, the raw samples from just after
-//     the band envelope's peak to just before the next impact go to dsp::identify_modes (the modes
-//     command's analysis) over the whole searched range [f_min, f_max] (not only the kurtogram band:
+//  4. Free responses: for up to 24 impacts spread over the record, the raw samples from 1/bw + 2 ms
+//     before the band envelope's peak to just before the next impact go to dsp::identify_modes (the
+//     modes command's analysis, onset found by it: the first sample at half the segment's peak; the
+//     search over the whole range [f_min, f_max], not only the kurtogram band:
 //     an impact's onset is a broadband click, so the sharpest bursts can lie well away from the
 //     resonance, and the ringing mode is the decaying one). Modes of all segments are
 //     clustered (+-1.5 % in f); the cluster found in the most segments with status ok is the
