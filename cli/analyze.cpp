@@ -65,6 +65,11 @@ int run_analyze(const std::vector<std::string>& argv, std::ostream& out, std::os
   out.flush();
   err << "analyze: " << path << ": " << index << " samples, " << processor.impacts_detected() << " impacts, "
       << processor.spikes_seen() << " spikes\n";
+  if (processor.impacts_detected() == 0 && index > 0)
+    err << "analyze: no impacts in the band watched, " << cfg.detector.band_lo_hz << "-" << cfg.detector.band_hi_hz
+        << " Hz (pipeline.detector.band_lo_hz/band_hi_hz of " << cfg_name << ", f_expected_hz "
+        << cfg.analyzer.f_expected_hz << "); if this rig's impacts ring elsewhere, `ridgewatch survey " << path
+        << " --write-config OUT.yaml` finds their band and proposes a configuration\n";
   return kExitOk;
 }
 

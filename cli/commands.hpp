@@ -14,5 +14,6 @@ int run_modes(const std::vector<std::string>& args, std::ostream& out, std::ostr
 int run_simulate(const std::vector<std::string>& args, std::ostream& out, std::ostream& err);
 int run_compare(const std::vector<std::string>& args, std::ostream& out, std::ostream& err);
 int run_diagnose(const std::vector<std::string>& args, std::ostream& out, std::ostream& err);
+int run_survey(const std::vector<std::string>& args, std::ostream& out, std::ostream& err);
 
 }  // namespace ridgewatch::cli

@@ -26,6 +26,7 @@ constexpr Command kCommands[] = {
     {"simulate", ridgewatch::cli::run_simulate},
     {"compare", ridgewatch::cli::run_compare},
     {"diagnose", ridgewatch::cli::run_diagnose},
+    {"survey", ridgewatch::cli::run_survey},
 };
 
 // Takes --format json|table out of the arguments of a command whose usage lists it (main handles it

@@ -458,6 +458,7 @@ int Daemon::run() {
   std::vector<pipeline::ImpactEvent> events;
   events.reserve(256);
   auto last_status = Clock::now();
+  bool hinted_survey = false;
   auto last_ping = Clock::now();
   std::uint64_t samples_at_last_ping = 0;
   bool stopping = false;
@@ -538,6 +539,16 @@ int Daemon::run() {
       d.notifier.status(d.status_text());
       spdlog::info("status: {}", d.status_text());
       last_status = now;
+      // The first minute of the stream without an impact: say which band is watched (issue 19).
+      if (!hinted_survey && d.processor->samples_seen() >= static_cast<std::uint64_t>(60.0 * d.fs)) {
+        hinted_survey = true;
+        if (d.processor->impacts_detected() == 0)
+          spdlog::warn("no impacts in the first minute in the band watched, {}-{} Hz (pipeline.detector), f_expected_hz {}; "
+                       "if this rig's impacts ring elsewhere, `ridgewatchd --survey 60 --write-config OUT.yaml` finds "
+                       "their band and proposes a configuration",
+                       d.cfg.pipeline.detector.band_lo_hz, d.cfg.pipeline.detector.band_hi_hz,
+                       d.cfg.pipeline.analyzer.f_expected_hz);
+      }
     }
   }
 

@@ -4,7 +4,11 @@
 #include <spdlog/spdlog.h>
 
 #include <chrono>
+#include <algorithm>
+#include <cmath>
 #include <cstdlib>
+#include <optional>
+#include <span>
 #include <iostream>
 #include <string>
 #include <vector>
@@ -12,6 +16,7 @@
 #include "cli/args.hpp"
 #include "cli/config_yaml.hpp"
 #include "cli/usage.hpp"
+#include "cli/survey.hpp"
 #include "daemon/daemon.hpp"
 #include "daemon/relay_test.hpp"
 #include "drivers/alsa_source.hpp"
@@ -50,6 +55,33 @@ void setup_logging(const std::string& level) {
   logger->set_level(spdlog::level::from_str(level));
   logger->flush_on(spdlog::level::trace);
   spdlog::set_default_logger(logger);
+}
+
+// --survey SECONDS: record that long from the configured source (nothing else is started: no event
+// log, no relays, no notification) and print the survey of cli/survey.hpp; --write-config OUT merges
+// the proposal into a copy of --config (or of the defaults).
+int run_survey_mode(const cli::Args& args, const cli::RidgewatchConfig& config, const std::optional<std::string>& config_path) {
+  const double seconds = args.number("--survey", 0.0, 0.5, 3600.0);
+  cli::SurveyOutput output;
+  output.write_config = args.value("--write-config");
+  output.base_config = config_path;
+  cli::check_survey_output(output);
+  auto source = ridgewatch::daemon::open_source(config.source);
+  const double fs = source->info().sample_rate_hz;
+  const auto want = static_cast<std::size_t>(std::llround(seconds * fs));
+  std::vector<double> x;
+  x.reserve(want);
+  std::vector<double> block(4096);
+  while (x.size() < want) {
+    const std::size_t n = source->read(std::span<double>(block.data(), std::min(block.size(), want - x.size())));
+    if (n == 0) break;
+    x.insert(x.end(), block.begin(), block.begin() + static_cast<std::ptrdiff_t>(n));
+  }
+  if (x.size() < want)
+    std::cerr << "ridgewatchd: survey: the source ended after " << static_cast<double>(x.size()) / fs << " s of the "
+              << seconds << " s asked for\n";
+  if (x.size() < 64) throw ridgewatch::drivers::InputError(source->info().name + ": too few samples for a survey");
+  return cli::survey_and_report(x, fs, source->info().name, {}, output, std::cout, std::cerr);
 }
 
 int run(const std::vector<std::string>& argv) {
@@ -115,6 +147,8 @@ int run(const std::vector<std::string>& argv) {
       lvl && *lvl != "trace" && *lvl != "debug" && *lvl != "info" && *lvl != "warn" && *lvl != "error")
     throw cli::UsageError("--log-level: '" + *lvl + "' is not one of trace, debug, info, warn, error");
 
+  if (args.has("--survey")) return run_survey_mode(args, config, config_path);
+  if (args.has("--write-config")) throw cli::UsageError("--write-config: only with --survey SECONDS");
 
   setup_logging(config.logging.level);
   install_signal_handlers();

@@ -1,0 +1,176 @@
+// `ridgewatch survey` (issue 19): kurtosis facts, acceptance cases on records of the independent
+// generator (tests/support/indep_signals.hpp, no code shared with core/model) through the real CLI
+// (`survey --write-config` then `analyze --config` with the proposal unchanged), controls without
+// impacts, the shared real hammer hit repeated with gaps, and the --write-config merge.
+// The full acceptance sweep is bench/bench_survey.cpp (numbers in the README).
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <complex>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+
+#include "bench/survey_cases.hpp"
+#include "cli/args.hpp"
+#include "cli/commands.hpp"
+#include "cli/config_yaml.hpp"
+#include "core/survey/kurtogram.hpp"
+#include "drivers/replay_file.hpp"
+
+namespace {
+
+std::string temp_dir(const std::string& name) {
+  const auto d = std::filesystem::temp_directory_path() / ("ridgewatch-test-survey-" + name);
+  std::filesystem::create_directories(d);
+  return d.string();
+}
+
+TEST(SpectralKurtosis, SteadyLineIsMinusOneAndNoiseIsZero) {
+  // A constant-modulus complex tone: <|c|^4> / <|c|^2>^2 = 1, SK = -1 exactly (to rounding).
+  std::vector<std::complex<double>> tone(4000);
+  for (std::size_t i = 0; i < tone.size(); ++i) tone[i] = std::polar(2.0, 0.1 * static_cast<double>(i));
+  EXPECT_NEAR(ridgewatch::survey::spectral_kurtosis(tone), -1.0, 1e-12);
+  // Complex Gaussian noise: SK = 0 with sd 2 / sqrt(n) (kurtogram.hpp); 5 sd for n = 40000.
+  indep::Rng rng(7);
+  std::vector<std::complex<double>> noise(40000);
+  for (auto& v : noise) v = {rng.gauss(), rng.gauss()};
+  EXPECT_NEAR(ridgewatch::survey::spectral_kurtosis(noise), 0.0, 5 * 2 / std::sqrt(40000.0));
+  // Bursts: one sample in 20 carries the power -> <y^2>/<y>^2 = 20, SK = 18.
+  std::vector<std::complex<double>> bursts(4000, {0.0, 0.0});
+  for (std::size_t i = 0; i < bursts.size(); i += 20) bursts[i] = {1.0, 0.0};
+  EXPECT_NEAR(ridgewatch::survey::spectral_kurtosis(bursts), 18.0, 1e-9);
+}
+
+// Acceptance figures of issue 19 for one record.
+void expect_accepted(const survey_cases::Case& c) {
+  SCOPED_TRACE(survey_cases::describe(c));
+  const auto o = survey_cases::run_case(c, temp_dir("acc"));
+  ASSERT_TRUE(o.proposal) << o.survey_text;
+  EXPECT_NEAR(o.f_expected_hz / c.f_hz, 1.0, 0.01);                                      // within 1 %
+  EXPECT_GE(static_cast<double>(o.found), 0.97 * static_cast<double>(o.truth)) << o.analyze_err;  // >= 97 %
+  EXPECT_EQ(o.false_events, 0u);
+  EXPECT_LE(o.median_zeta_err, 0.02);                                                    // median <= 2 %
+}
+
+TEST(SurveyAcceptance, PaperLikeRigInt16) {
+  survey_cases::Case c;  // 854 Hz, 25/s with a -5..+5 % ramp, zeta 0.02, 30 dB, 51.2 kHz int16
+  c.zeta = 0.02;
+  c.seed = 1;
+  expect_accepted(c);
+}
+
+#ifndef RIDGEWATCH_SANITIZED
+TEST(SurveyAcceptance, SlowRateHighModeFloatWobble) {
+  survey_cases::Case c;
+  c.fs_hz = 51200;
+  c.f_hz = 2500;
+  c.rate_hz = 5;
+  c.zeta = 0.002;
+  c.snr_db = 25;
+  c.float32 = true;
+  c.wobble = true;
+  c.duration_s = 8;
+  c.seed = 119;
+  expect_accepted(c);
+}
+
+TEST(SurveyAcceptance, LowModeAt44k) {
+  survey_cases::Case c;
+  c.fs_hz = 44100;
+  c.f_hz = 300;
+  c.rate_hz = 5;
+  c.zeta = 0.01;
+  // 20 dB: at 10 dB this record's median |zeta error| is 2.1 % (39 ok of 40 found, f 0.006 % off):
+  // the pipeline's accuracy at that noise, listed in the README sweep.
+  c.snr_db = 20;
+  c.float32 = true;
+  c.duration_s = 8;
+  c.seed = 101;
+  expect_accepted(c);
+}
+#endif
+
+TEST(SurveyControls, NoImpactsNoProposal) {
+#ifdef RIDGEWATCH_SANITIZED
+  const int seeds = 1;
+#else
+  const int seeds = 3;
+#endif
+  for (int s = 0; s < seeds; ++s) {
+    survey_cases::Case c;
+    c.impacts = false;
+    c.seed = static_cast<std::uint64_t>(2000 + s);
+    c.fs_hz = s % 2 ? 25600 : 48000;
+    c.rate_hz = 10 + 30 * s;
+    c.wobble = s % 2;
+    c.snr_db = 10 + 15 * s;
+    SCOPED_TRACE(survey_cases::describe(c));
+    const auto o = survey_cases::run_case(c, temp_dir("ctl"));
+    EXPECT_EQ(o.survey_rc, 0);
+    EXPECT_FALSE(o.proposal) << o.survey_text;
+    EXPECT_NE(o.survey_text.find("\"proposal\":null"), std::string::npos);
+  }
+}
+
+TEST(SurveyRealData, HammerHitRepeatedFiveTimes) {
+  const std::string hit = std::string(RIDGEWATCH_SHARED_DIR) + "/real-data/hammer-hit/hit-1.wav";
+  if (!std::filesystem::exists(hit)) GTEST_SKIP() << hit << " not present";
+  ridgewatch::drivers::ReplayOptions ro;
+  ro.channel = 0;  // the response (channel 1 is the hammer force)
+  auto src = ridgewatch::drivers::open_replay(hit, ro);
+  const double fs = src->info().sample_rate_hz;
+  const auto x = ridgewatch::drivers::read_all(*src);
+  const auto rep = indep::repeat_with_gaps(x, fs, 5, 0.5);
+  const std::string dir = temp_dir("hammer");
+  indep::write_wav_mono(dir + "/hammer5.wav", rep, fs, indep::SampleFormat::float32);
+  // Truth: one impact per copy, at the hit's position in each 1.5 s copy; the onset is not known
+  // exactly, so events are matched within 0.2 s of the copy's peak.
+  std::size_t peak = 0;
+  for (std::size_t i = 0; i < x.size(); ++i)
+    if (std::fabs(x[i]) > std::fabs(x[peak])) peak = i;
+  std::vector<double> onsets, zetas;
+  for (int k = 0; k < 5; ++k) {
+    onsets.push_back((static_cast<double>(peak) + k * (static_cast<double>(x.size()) + 0.5 * fs)) / fs);
+    zetas.push_back(1e-3);  // order of magnitude only (README of the data); not scored
+  }
+  const auto o = survey_cases::survey_then_analyze(dir + "/hammer5.wav", dir + "/hammer5.yaml", onsets, zetas, 0.2);
+  ASSERT_TRUE(o.proposal) << o.survey_text;
+  const double f = o.f_expected_hz;
+  // Within 3 % of one of the known strong modes (the data's README gives them rounded).
+  const bool near_mode = std::fabs(f / 900 - 1) < 0.03 || std::fabs(f / 2640 - 1) < 0.03 || std::fabs(f / 5970 - 1) < 0.03;
+  EXPECT_TRUE(near_mode) << "f_expected_hz " << f;
+  EXPECT_EQ(o.found, 5u) << o.analyze_err;
+  EXPECT_EQ(o.false_events, 0u);
+}
+
+TEST(SurveyCli, WriteConfigMergesIntoACopyAndRefusesTheBaseItself) {
+  namespace cli = ridgewatch::cli;
+  const std::string dir = temp_dir("cli");
+  survey_cases::Case c;
+  c.duration_s = 3;
+  const auto r = survey_cases::make_record(c);
+  indep::write_wav_mono(dir + "/rec.wav", r.x, c.fs_hz, indep::SampleFormat::pcm16);
+  // A base file with a non-default key outside the pipeline, and one inside it that the survey does
+  // not set: both must survive in the copy.
+  {
+    std::ofstream f(dir + "/base.yaml");
+    f << "output:\n  csv: \"/var/log/ridgewatch/events.csv\"\npipeline:\n  analyzer:\n    min_snr_db: 17\n";
+  }
+  std::ostringstream out, err;
+  ASSERT_EQ(cli::run_survey({dir + "/rec.wav", "--config", dir + "/base.yaml", "--write-config", dir + "/out.yaml"}, out, err), 0)
+      << err.str();
+  const auto merged = cli::load_config_file(dir + "/out.yaml");
+  EXPECT_EQ(merged.output.csv, "/var/log/ridgewatch/events.csv");
+  EXPECT_EQ(merged.pipeline.analyzer.min_snr_db, 17.0);
+  EXPECT_NEAR(merged.pipeline.analyzer.f_expected_hz / c.f_hz, 1.0, 0.01);
+  EXPECT_LT(merged.pipeline.detector.band_lo_hz, c.f_hz);
+  EXPECT_GT(merged.pipeline.detector.band_hi_hz, c.f_hz);
+  // The text report prints the same block.
+  EXPECT_NE(out.str().find("pipeline:\n  detector:\n    band_lo_hz: "), std::string::npos);
+  std::ostringstream o2, e2;
+  EXPECT_THROW(cli::run_survey({dir + "/rec.wav", "--config", dir + "/base.yaml", "--write-config", dir + "/base.yaml"}, o2, e2),
+               cli::UsageError);
+}
+
+}  // namespace
