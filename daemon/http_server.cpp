@@ -30,6 +30,12 @@ HttpServer::HttpServer(const std::string& listen, const Telemetry& telemetry) : 
   // Two workers are plenty for a scrape every few seconds and a page or two polling once a second
   // (the library's default is 8 threads or more).
   s.new_task_queue = [] { return new httplib::ThreadPool(2); };
+  // The library's default also sets SO_REUSEPORT, which would let a second process share (and take
+  // requests from) a port already in use; only SO_REUSEADDR (fast restarts) is wanted.
+  s.set_socket_options([](socket_t sock) {
+    int yes = 1;
+    ::setsockopt(sock, SOL_SOCKET, SO_REUSEADDR, &yes, sizeof yes);
+  });
   s.Get("/metrics", [&telemetry](const httplib::Request&, httplib::Response& res) {
     res.set_content(telemetry.prometheus_text(), "text/plain; version=0.0.4; charset=utf-8");
   });

@@ -7,6 +7,7 @@ packages=(
   libgtest-dev libgmock-dev libbenchmark-dev nlohmann-json3-dev
   libasound2-dev libgpiod-dev libsystemd-dev systemd
   clang-14 libclang-rt-14-dev
+  libmosquitto-dev mosquitto libcpp-httplib-dev prometheus
 )
 missing=()
 for p in "${packages[@]}"; do
