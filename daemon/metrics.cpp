@@ -1,6 +1,7 @@
 #include "daemon/metrics.hpp"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <nlohmann/json.hpp>
 
@@ -13,7 +14,7 @@ namespace {
 constexpr std::size_t kRecentEvents = 300;  // events shown on the page's trend
 constexpr std::size_t kEnvelopes = 6;       // last impacts' envelopes on the page
 constexpr std::size_t kEnvelopePoints = 160;
-constexpr double kEnvelopeEvery_s = 0.25;   // stream time between captured envelopes
+constexpr double kEnvelopeEvery_s = 0.2;    // wall time between captured envelopes
 
 // Prometheus sample value: Go's ParseFloat spellings for the special values.
 std::string prom_value(double v) {
@@ -107,9 +108,13 @@ void Telemetry::observe_latency(double seconds) {
   latency_sum_ += seconds;
 }
 
-bool Telemetry::wants_envelope(const pipeline::ImpactEvent& e) {
-  std::lock_guard<std::mutex> lock(mutex_);
-  return e.t_s - last_envelope_t_s_ >= kEnvelopeEvery_s || e.t_s < last_envelope_t_s_;
+bool Telemetry::wants_envelope(const pipeline::ImpactEvent&) {
+  // The page polls once a second: a few envelopes per second of wall time are all it can show (a
+  // fast replay would otherwise copy and reduce a window for every fourth impact).
+  const auto now = std::chrono::steady_clock::now();
+  if (now - last_envelope_wall_ < std::chrono::duration<double>(kEnvelopeEvery_s)) return false;
+  last_envelope_wall_ = now;
+  return true;
 }
 
 void Telemetry::add_envelope(const pipeline::ImpactEvent& e, std::span<const float> window, std::uint64_t first) {
@@ -134,7 +139,6 @@ void Telemetry::add_envelope(const pipeline::ImpactEvent& e, std::span<const flo
   env.n = events_ + 1;  // called before on_events() for this event's block: refined below
   for (auto it = recent_.rbegin(); it != recent_.rend(); ++it)
     if (it->t_s == e.t_s) env.n = it->n;
-  last_envelope_t_s_ = e.t_s;
   envelopes_.push_back(std::move(env));
   if (envelopes_.size() > kEnvelopes) envelopes_.pop_front();
 }

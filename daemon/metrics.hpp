@@ -8,6 +8,7 @@
 
 #include <array>
 #include <atomic>
+#include <chrono>
 #include <cstdint>
 #include <deque>
 #include <functional>
@@ -41,7 +42,7 @@ class Telemetry {
   void on_events(std::span<const pipeline::ImpactEvent> events);
   void set_counters(const DaemonCounters& c);
   void observe_latency(double seconds);
-  /// True when the page wants the samples of this event's window (at most a few per second).
+  /// True when the page wants the samples of this event's window (at most 5 per second of wall time).
   bool wants_envelope(const pipeline::ImpactEvent& e);
   /// The event's window (pretrigger + decay, first sample at window_first_index): reduced to a
   /// peak-|x| envelope of at most 160 points for the page.
@@ -89,7 +90,7 @@ class Telemetry {
   double latency_sum_ = 0.0;
   std::deque<Compact> recent_;
   std::deque<Envelope> envelopes_;
-  double last_envelope_t_s_ = -1e300;
+  std::chrono::steady_clock::time_point last_envelope_wall_{};  // processing thread only
 };
 
 /// Prometheus label value escaping (backslash, double quote, newline).

@@ -233,7 +233,10 @@ void MqttSink::drop_connection(const std::string& why) {
 }
 
 void MqttSink::pump() {
-  // Events from the spool, in seq order, keeping at most kWindow in flight.
+  // Events from the spool, in seq order, keeping at most kWindow in flight, refilled after every
+  // acknowledgement. Waiting for 32 or 128 to be acknowledged first stalled on the broker's
+  // Nagle-delayed PUBACKs (our delayed TCP ACKs are no longer carried by outgoing data): a 15 000-event
+  // backlog then took 1.2-2 s to deliver instead of 0.04 s.
   while (inflight_.size() < kWindow) {
     batch_.clear();
     if (spool_.read(sent_through_, kWindow - inflight_.size(), batch_) == 0) break;

@@ -51,7 +51,12 @@ void NetworkOutputs::poll(const DaemonCounters& counters, bool force) {
 
 void NetworkOutputs::stop(std::chrono::milliseconds drain) {
   if (mqtt_) {
+    const auto t0 = std::chrono::steady_clock::now();
+    const std::uint64_t waiting = mqtt_->counters().spool_events;
     mqtt_->stop(drain);
+    if (waiting > 0 && drain.count() > 0)
+      spdlog::info("MQTT: {} events were waiting for the broker at the end of input; drain took {:.3f} s", waiting,
+                   std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count());
     for (const auto& [level, text] : mqtt_->take_log()) spdlog::log(static_cast<spdlog::level::level_enum>(level), "{}", text);
     const MqttCounters c = mqtt_->counters();
     if (c.spool_events > 0)

@@ -50,6 +50,12 @@ Spool::Spool(std::string dir, std::uint64_t max_bytes) : dir_(std::move(dir)), m
 Spool::~Spool() {
   persist();
   if (fd_ >= 0) ::close(fd_);
+  close_read_fd();
+}
+
+void Spool::close_read_fd() {
+  if (read_fd_ >= 0) ::close(read_fd_);
+  read_fd_ = -1;
 }
 
 std::string Spool::segment_path(std::uint64_t first_seq) const {
@@ -190,6 +196,7 @@ void Spool::enforce_bound() {
     total_bytes_ -= s.bytes;
     changed = true;
     write_state();
+    if (read_fd_first_ == s.first) close_read_fd();
     ::unlink(s.path.c_str());
     segments_.pop_front();
   }
@@ -221,18 +228,21 @@ std::size_t Spool::read(std::uint64_t after_seq, std::size_t max, std::vector<Me
       cursor_off_ = 0;
       continue;
     }
-    const int fd = ::open(it->path.c_str(), O_RDONLY | O_CLOEXEC);
-    if (fd < 0) break;
-    // 256 kB at a time: hundreds of events per read (an event line is ~400 bytes).
-    std::uint64_t chunk = std::min<std::uint64_t>(it->bytes - cursor_off_, 256u << 10);
+    if (read_fd_ < 0 || read_fd_first_ != it->first) {
+      close_read_fd();
+      read_fd_ = ::open(it->path.c_str(), O_RDONLY | O_CLOEXEC);
+      if (read_fd_ < 0) break;
+      read_fd_first_ = it->first;
+    }
+    // About what `max - count` lines need (an event line is ~450 bytes), at most 256 kB.
+    std::uint64_t chunk = std::min<std::uint64_t>(it->bytes - cursor_off_, std::min<std::uint64_t>(4096 + 1024 * (max - count), 256u << 10));
     read_buf_.resize(chunk);
-    ssize_t got = ::pread(fd, read_buf_.data(), chunk, static_cast<off_t>(cursor_off_));
+    ssize_t got = ::pread(read_fd_, read_buf_.data(), chunk, static_cast<off_t>(cursor_off_));
     if (got > 0 && std::string_view(read_buf_.data(), static_cast<std::size_t>(got)).find('\n') == std::string_view::npos) {
       chunk = it->bytes - cursor_off_;  // one line longer than the chunk
       read_buf_.resize(chunk);
-      got = ::pread(fd, read_buf_.data(), chunk, static_cast<off_t>(cursor_off_));
+      got = ::pread(read_fd_, read_buf_.data(), chunk, static_cast<off_t>(cursor_off_));
     }
-    ::close(fd);
     if (got <= 0) break;
     const std::string_view text(read_buf_.data(), static_cast<std::size_t>(got));
     std::size_t pos = 0;
@@ -270,6 +280,7 @@ void Spool::ack_through(std::uint64_t seq) {
       fd_ = -1;
     }
     total_bytes_ -= s.bytes;
+    if (read_fd_first_ == s.first) close_read_fd();
     ::unlink(s.path.c_str());
     segments_.pop_front();
   }

@@ -92,6 +92,9 @@ class Spool {
   // Consumer cursor: the byte offset of seq cursor_seq_ in the segment that starts at cursor_first_.
   std::uint64_t cursor_seq_ = 0, cursor_first_ = 0, cursor_off_ = 0;
   std::string read_buf_;
+  int read_fd_ = -1;  // consumer: the segment being read (first seq read_fd_first_)
+  std::uint64_t read_fd_first_ = 0;
+  void close_read_fd();
 };
 
 }  // namespace ridgewatch::daemon
