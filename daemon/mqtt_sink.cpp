@@ -288,7 +288,8 @@ void MqttSink::run() {
     const auto now = Clock::now();
     if (stopping) {
       const bool drained = spool_.depth() == 0 && inflight_.empty();
-      if (drained || now >= deadline || (!connected_ && now + backoff_ >= deadline)) break;
+      // Without a connection, give up at once when the next attempt would come after the deadline.
+      if (drained || now >= deadline || (!mosq_ && next_attempt_ >= deadline)) break;
     }
     if (now - last_persist_ >= std::chrono::seconds(1)) {
       spool_.persist();

@@ -67,7 +67,9 @@ class Broker {
     const auto conf = dir_ / "mosquitto.conf";
     std::ofstream(conf) << "listener " << port_ << " 127.0.0.1\nallow_anonymous true\npersistence true\n"
                         << "persistence_location " << dir_.string() << "/\nautosave_interval 1\n"
-                        << "max_queued_messages 0\nlog_dest stderr\n";
+                        << "max_queued_messages 0\nlog_dest stderr\n"
+                        // Started as root, mosquitto drops to user "mosquitto", which cannot write here.
+                        << (::geteuid() == 0 ? "user root\n" : "");
     proc_ = std::make_unique<ChildProcess>(std::vector<std::string>{"/usr/sbin/mosquitto", "-c", conf.string()},
                                            std::vector<std::string>{}, (dir_ / "broker.out").string(),
                                            (dir_ / "broker.err").string());
