@@ -92,3 +92,27 @@ TEST(FleetExample, DashboardQueriesOnlyExportedMetrics) {
     }
   EXPECT_GE(queries, 10u);
 }
+
+// The network drop-in loads cleanly on top of the unit (systemd reads it: the offline security
+// review then reports the host network), and keeps every address but loopback denied.
+TEST(FleetExample, NetworkDropInVerifiesWithTheUnit) {
+  if (std::system("command -v systemd-analyze >/dev/null 2>&1") != 0) GTEST_SKIP() << "systemd-analyze not installed";
+  const auto dir = fs::temp_directory_path() / ("ridgewatch-unit-net-" + std::to_string(::getpid()));
+  fs::remove_all(dir);
+  fs::create_directories(dir / "ridgewatchd.service.d");
+  std::string unit = ridgewatch::test::slurp(fs::path(RIDGEWATCH_SOURCE_DIR) / "systemd" / "ridgewatchd.service");
+  const std::string from = "/usr/local/sbin/ridgewatchd";
+  for (std::size_t p; (p = unit.find(from)) != std::string::npos;) unit.replace(p, from.size(), RIDGEWATCHD_PATH);
+  std::ofstream(dir / "ridgewatchd.service") << unit;
+  const std::string dropin = ridgewatch::test::slurp(fs::path(RIDGEWATCH_SOURCE_DIR) / "systemd" / "ridgewatchd.service.d" / "20-network.conf");
+  EXPECT_EQ(dropin.find("\nIPAddressDeny="), std::string::npos);  // the unit's IPAddressDeny=any stays
+  std::ofstream(dir / "ridgewatchd.service.d" / "20-network.conf") << dropin;
+  const std::string env = "SYSTEMD_UNIT_PATH=" + dir.string() + ": ";
+  EXPECT_EQ(std::system((env + "systemd-analyze verify ridgewatchd.service > " + (dir / "verify.log").string() + " 2>&1").c_str()), 0);
+  EXPECT_EQ(ridgewatch::test::slurp(dir / "verify.log"), "");  // no ignored or invalid assignments
+  std::system((env + "systemd-analyze security --offline=true ridgewatchd.service > " + (dir / "sec.log").string() + " 2>&1").c_str());
+  const std::string sec = ridgewatch::test::slurp(dir / "sec.log");
+  EXPECT_NE(sec.find("Service has access to the host's network"), std::string::npos) << sec;
+  EXPECT_NE(sec.find("allow list with only localhost entries"), std::string::npos) << sec;
+  fs::remove_all(dir);
+}
