@@ -83,6 +83,15 @@ class Broker {
     proc_->wait(std::chrono::seconds(10));
     proc_.reset();
   }
+  /// SIGSTOP then SIGKILL: the broker dies with messages it received but never acknowledged.
+  void freeze_and_kill(std::chrono::milliseconds frozen) {
+    if (!proc_) return;
+    proc_->signal(SIGSTOP);
+    std::this_thread::sleep_for(frozen);
+    proc_->signal(SIGKILL);
+    proc_->wait(std::chrono::seconds(10));
+    proc_.reset();
+  }
   ~Broker() { stop(); }
   int port() const { return port_; }
 
