@@ -88,7 +88,11 @@ MqttSink::MqttSink(const cli::MqttConfig& config, const std::string& source_name
   check_readable("key_file", cfg_.tls.key_file);
   ack_pointer_ = spool_.acked();
   sent_through_ = ack_pointer_;
-  thread_ = std::thread([this] { run(); });
+}
+
+void MqttSink::start() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  if (!thread_.joinable() && !stop_) thread_ = std::thread([this] { run(); });
 }
 
 MqttSink::~MqttSink() { stop(std::chrono::milliseconds(0)); }

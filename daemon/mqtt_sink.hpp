@@ -43,12 +43,14 @@ std::string default_client_id(const std::string& source_name);
 class MqttSink {
  public:
   /// Opens the spool and reads the password file; throws cli::UsageError naming the key when either
-  /// fails or the TLS files are not usable. Starts the sender thread (which connects by itself).
-  /// `telemetry` supplies the status message (may be null).
+  /// fails or the TLS files are not usable. `telemetry` supplies the status message (may be null; it
+  /// must be fully set up before start()).
   MqttSink(const cli::MqttConfig& config, const std::string& source_name, const Telemetry* telemetry,
            double status_interval_s);
   ~MqttSink();
   MqttSink(const MqttSink&) = delete;
+  /// Starts the sender thread (which connects by itself and retries).
+  void start();
   MqttSink& operator=(const MqttSink&) = delete;
 
   // Processing thread (never blocks on the network).

@@ -17,6 +17,7 @@ std::unique_ptr<NetworkOutputs> NetworkOutputs::start(const cli::RidgewatchConfi
     n->mqtt_ = std::make_unique<MqttSink>(cfg.output.mqtt, source_name, &n->telemetry_, cfg.logging.status_interval_s);
     const MqttSink* m = n->mqtt_.get();
     n->telemetry_.set_mqtt_source([m] { return m->counters(); });
+    n->mqtt_->start();  // after the telemetry is complete: the sender thread reads it
     spdlog::info("MQTT: events to {}:{} topic {}/events (QoS {}), spool {} ({} events waiting)", cfg.output.mqtt.host,
                  cfg.output.mqtt.port, m->topic_prefix(), cfg.output.mqtt.qos, cfg.output.mqtt.spool_dir,
                  m->counters().spool_events);

@@ -9,6 +9,7 @@
 #include <sys/socket.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <chrono>
 #include <filesystem>
 #include <fstream>
@@ -101,13 +102,14 @@ class Broker {
   std::unique_ptr<ChildProcess> proc_;
 };
 
-/// A persistent-session QoS 1 subscriber (libmosquitto's own thread, reconnecting by itself).
+/// A persistent-session QoS 1 subscriber. Its own thread runs the client (libmosquitto's threaded
+/// loop trips ThreadSanitizer inside the library when the broker is killed) and reconnects every
+/// 100 ms while the broker is away, subscribing again on every connection.
 class Subscriber {
  public:
   Subscriber(int port, const std::string& topic, const std::string& client_id = "ridgewatch-test-sub") : topic_(topic) {
     mosquitto_lib_init();
     m_ = mosquitto_new(client_id.c_str(), false, this);
-    mosquitto_reconnect_delay_set(m_, 1, 1, false);
     mosquitto_connect_callback_set(m_, [](struct mosquitto* m, void* self, int rc) {
       if (rc == 0) mosquitto_subscribe(m, nullptr, static_cast<Subscriber*>(self)->topic_.c_str(), 1);
     });
@@ -120,13 +122,29 @@ class Subscriber {
       s->messages_.push_back({msg->topic, std::string(static_cast<const char*>(msg->payload), static_cast<std::size_t>(msg->payloadlen)),
                               msg->retain});
     });
-    mosquitto_connect(m_, "127.0.0.1", port, 30);
-    mosquitto_loop_start(m_);
+    thread_ = std::thread([this, port] {
+      bool connected = false, ever = false;
+      while (!stop_.load()) {
+        if (!connected) {
+          const int rc = ever ? mosquitto_reconnect(m_) : mosquitto_connect(m_, "127.0.0.1", port, 30);
+          if (rc != MOSQ_ERR_SUCCESS) {
+            std::this_thread::sleep_for(std::chrono::milliseconds(100));
+            continue;
+          }
+          connected = ever = true;
+        }
+        if (mosquitto_loop(m_, 20, 1) != MOSQ_ERR_SUCCESS) connected = false;
+      }
+      if (connected) {
+        mosquitto_disconnect(m_);
+        mosquitto_loop(m_, 20, 1);
+      }
+    });
     wait_for([&] { return subscribed_.load(); }, std::chrono::seconds(10));
   }
   ~Subscriber() {
-    mosquitto_disconnect(m_);
-    mosquitto_loop_stop(m_, true);
+    stop_ = true;
+    thread_.join();
     mosquitto_destroy(m_);
   }
   struct Msg {
@@ -145,7 +163,8 @@ class Subscriber {
  private:
   std::string topic_;
   struct mosquitto* m_ = nullptr;
-  std::atomic<bool> subscribed_{false};
+  std::atomic<bool> subscribed_{false}, stop_{false};
+  std::thread thread_;
   std::mutex mutex_;
   std::vector<Msg> messages_;
 };
