@@ -9,6 +9,9 @@ namespace ridgewatch::cli {
 Args::Args(const std::vector<std::string>& argv, std::set<std::string> valued,
            std::set<std::string> switches)
     : valued_(std::move(valued)), switches_(std::move(switches)) {
+  if (!switches_.count("--help"))
+    for (const auto& a : argv)
+      if (a == "--help") throw HelpRequested(valued_, switches_);
   for (std::size_t i = 0; i < argv.size(); ++i) {
     const std::string& a = argv[i];
     if (a.size() > 2 && a.rfind("--", 0) == 0) {

@@ -7,6 +7,7 @@
 #include <set>
 #include <stdexcept>
 #include <string>
+#include <utility>
 #include <vector>
 
 namespace ridgewatch::cli {
@@ -20,10 +21,22 @@ class UsageError : public std::runtime_error {
   using std::runtime_error::runtime_error;
 };
 
+/// Thrown by Args when "--help" is among the arguments (and the command does not parse --help
+/// itself): main() prints the command's help from cli/usage.cpp and exits 0. Carries the flags the
+/// command's Args accepts, so tests can compare them with the usage table.
+class HelpRequested : public std::exception {
+ public:
+  HelpRequested(std::set<std::string> valued_flags, std::set<std::string> switch_flags)
+      : valued(std::move(valued_flags)), switches(std::move(switch_flags)) {}
+  const char* what() const noexcept override { return "--help"; }
+  std::set<std::string> valued, switches;
+};
+
 class Args {
  public:
   /// `valued`: flags that take a value (`--rate 10000` or `--rate=10000`), may repeat.
-  /// `switches`: flags without a value. Anything else starting with "--" is an error.
+  /// `switches`: flags without a value. Anything else starting with "--" is an error, except
+  /// "--help", which throws HelpRequested unless it is one of `switches`.
   Args(const std::vector<std::string>& argv, std::set<std::string> valued, std::set<std::string> switches);
 
   bool has(const std::string& flag) const;

@@ -84,7 +84,13 @@ void walk(RidgewatchConfig& c, V& v) {
   v.map("output", [&] {
     v.text("events", c.output.events);
     v.text("csv", c.output.csv);
-    v.text("capture_dir", c.output.capture_dir);
+    v.map("capture", [&] {
+      v.text("dir", c.output.capture.dir);
+      v.count("max_files", c.output.capture.max_files, 0, 1LL << 40);
+      v.count("max_bytes", c.output.capture.max_bytes, 0, 1LL << 60);
+      v.text("select", c.output.capture.select);
+    });
+    v.legacy_text("capture_dir", c.output.capture.dir);  // old spelling of capture.dir, read only
     v.text("source_name", c.output.source_name);
     v.map("mqtt", [&] {
       auto& m = c.output.mqtt;
@@ -180,6 +186,16 @@ class Parser {
         r_.fail(YamlReader::join(path, key), "must be one of two-point, ridge-ls, ml (got '" + text + "')");
     });
   }
+  /// An old spelling: read like text() (overriding the new key only when given), never printed.
+  void legacy_text(const char* key, std::string& v) {
+    visit(key, [&](const YAML::Node& p, const std::string& path) {
+      if (!p[key]) return;
+      const std::string before = v;
+      r_.read(p, path, key, v);
+      if (!before.empty() && before != v)
+        r_.fail(YamlReader::join(path, key), "old spelling of capture.dir; give only one of the two");
+    });
+  }
   void check_top() { r_.check_map(stack_.front().node, "", known_.front()); }
 
  private:
@@ -234,6 +250,7 @@ class Printer {
   template <typename Int>
   void count(const char* key, Int v, long long, long long) { line(key, std::to_string(v)); }
   void method(const char* key, dsp::DampingMethod m) { line(key, std::string(dsp::to_string(m))); }
+  void legacy_text(const char*, const std::string&) {}
   std::string str() const { return out_.str(); }
 
  private:
@@ -264,6 +281,8 @@ void check_values(const YamlReader& r, const RidgewatchConfig& c) {
   if (!(s.alsa.retry_min_s > 0 && s.alsa.retry_max_s >= s.alsa.retry_min_s && s.alsa.retry_max_s <= 3600))
     r.fail("source.alsa.retry_min_s", "need 0 < retry_min_s <= retry_max_s <= 3600 s");
   if (c.output.events.empty()) r.fail("output.events", "must be a path or - (standard output)");
+  if (const auto& sel = c.output.capture.select; sel != "all" && sel != "not_ok" && sel != "alarm")
+    r.fail("output.capture.select", "must be all, not_ok or alarm (got '" + sel + "')");
   static const std::set<std::string> levels = {"trace", "debug", "info", "warn", "error"};
   if (!levels.count(c.logging.level)) r.fail("logging.level", "must be trace, debug, info, warn or error (got '" + c.logging.level + "')");
   if (!(c.logging.repeat_interval_s >= 0)) r.fail("logging.repeat_interval_s", "must be >= 0");

@@ -5,6 +5,7 @@
 //   "ridgewatch.yaml: pipeline.analyzer.window_s: must be > 0 (got 0)".
 #pragma once
 
+#include <cstdint>
 #include <string>
 
 #include "core/pipeline/stream_processor.hpp"
@@ -64,10 +65,18 @@ struct HttpConfig {
   std::string listen;             ///< "ADDRESS:PORT", e.g. "127.0.0.1:9420"; empty: off
 };
 
+/// Capture-on-trigger (`output.capture`): each selected impact window as WAV + sidecar JSON, bounded.
+struct CaptureConfig {
+  std::string dir;                      ///< "" = off; old spelling `output.capture_dir`
+  std::uint64_t max_files = 1000;       ///< files kept in dir (a capture is 2 files); 0 = no limit
+  std::uint64_t max_bytes = 100000000;  ///< bytes kept in dir; 0 = no limit
+  std::string select = "all";           ///< all, not_ok (status not ok) or alarm (alert or danger)
+};
+
 struct OutputConfig {
   std::string events = "-";       ///< JSON Lines event log; "-" = standard output
   std::string csv;                ///< optional CSV event log
-  std::string capture_dir;        ///< capture-on-trigger: each impact window as WAV + sidecar JSON
+  CaptureConfig capture;          ///< capture-on-trigger, oldest captures removed beyond the limits
   std::string source_name;        ///< `source` field of the events; empty: file path or ALSA device
   MqttConfig mqtt;
 };

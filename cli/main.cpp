@@ -1,36 +1,19 @@
 // ridgewatch: command-line front end. Results go to stdout, messages to stderr.
 #include <exception>
 #include <iostream>
+#include <optional>
+#include <sstream>
 #include <string>
 #include <vector>
 
 #include "cli/args.hpp"
 #include "cli/commands.hpp"
+#include "cli/format_table.hpp"
+#include "cli/usage.hpp"
 #include "drivers/sample_source.hpp"
 #include "ridgewatch_version.hpp"
 
 namespace {
-
-constexpr const char* kUsage =
-    "usage: ridgewatch COMMAND [ARGS]\n"
-    "commands:\n"
-    "  analyze FILE [--config F] [--channel N] [--rate HZ]\n"
-    "      detect impacts and print one JSON line per impact (frequency, damping ratio, status, alarm)\n"
-    "  modes FILE [--channel N] [--rate HZ] [--fmin HZ] [--fmax HZ] [--max-modes K]\n"
-    "             [--method two-point|ridge-ls|ml] [--eta0 X]\n"
-    "      identify the modes (frequency, damping ratio, 95 % interval) of one free response\n"
-    "  simulate --rig RIG.yaml [--effect NAME[:key=value,...]]... [--duration S] [--rate HZ] [--noise REL]\n"
-    "           [--seed N] [--channels vib|vib,tacho] --out BASE   (or: simulate --list-effects)\n"
-    "      simulate the gear-pair model; writes BASE.wav and BASE.truth.json\n"
-    "  compare --rig RIG.yaml FILE [--with EFFECT]... [--json] [--plots DIR]\n"
-    "      fit the gear-pair model to the impacts; fitted c0 vs nominal, held-out excess, where it fails\n"
-    "  diagnose --rig RIG.yaml FILE [--with EFFECT]... [--json] [--history H.jsonl] [--max-impacts N]\n"
-    "           [--plots DIR]\n"
-    "      find the missing model effect: try each catalogue effect, accept those that pass the gate\n"
-    "  --plots DIR (compare, diagnose): also write SVG plots and DIR/index.html, a page that shows them\n"
-    "      (DIR is created; if it cannot be created or written: exit 2 naming --plots and DIR)\n"
-    "  --version  print the version\n"
-    "exit codes: 0 ok, 2 bad usage or configuration, 3 bad input data\n";
 
 struct Command {
   const char* name;
@@ -45,28 +28,64 @@ constexpr Command kCommands[] = {
     {"diagnose", ridgewatch::cli::run_diagnose},
 };
 
+// Takes --format json|table out of the arguments of a command whose usage lists it (main handles it
+// for every such command, so the commands keep printing JSON). nullopt: not given.
+std::optional<std::string> take_format(const std::string& command, std::vector<std::string>& args) {
+  namespace cli = ridgewatch::cli;
+  const auto* doc = cli::usage::find(command);
+  bool listed = false;
+  for (const auto& f : doc ? doc->flags : std::vector<cli::usage::Flag>{}) listed = listed || f.name == "--format";
+  if (!listed) return std::nullopt;
+  std::optional<std::string> format;
+  for (std::size_t i = 0; i < args.size();) {
+    if (args[i] == "--format") {
+      if (i + 1 >= args.size()) throw cli::UsageError("--format needs a value");
+      format = args[i + 1];
+      args.erase(args.begin() + static_cast<std::ptrdiff_t>(i), args.begin() + static_cast<std::ptrdiff_t>(i) + 2);
+    } else if (args[i].rfind("--format=", 0) == 0) {
+      format = args[i].substr(9);
+      args.erase(args.begin() + static_cast<std::ptrdiff_t>(i));
+    } else {
+      ++i;
+    }
+  }
+  if (format && *format != "json" && *format != "table")
+    throw cli::UsageError("--format: '" + *format + "' is not one of json, table");
+  // compare and diagnose print text by default; both formats start from their JSON.
+  if (format && (command == "compare" || command == "diagnose")) args.push_back("--json");
+  return format;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   namespace cli = ridgewatch::cli;
   if (argc < 2) {
-    std::cerr << kUsage;
+    std::cerr << cli::usage::top_help();
     return cli::kExitUsage;
   }
   const std::string command = argv[1];
   if (command == "--help" || command == "-h" || command == "help") {
-    std::cout << kUsage;
+    std::cout << cli::usage::top_help();
     return cli::kExitOk;
   }
   if (command == "--version") {
     std::cout << "ridgewatch " << RIDGEWATCH_VERSION << "\n";
     return cli::kExitOk;
   }
-  const std::vector<std::string> args(argv + 2, argv + argc);
+  std::vector<std::string> args(argv + 2, argv + argc);
   for (const Command& c : kCommands) {
     if (command != c.name) continue;
     try {
-      return c.run(args, std::cout, std::cerr);
+      const auto format = take_format(command, args);
+      if (format != "table") return c.run(args, std::cout, std::cerr);
+      std::ostringstream json;
+      const int rc = c.run(args, json, std::cerr);
+      std::cout << (rc == cli::kExitOk ? cli::format_table(json.str()) : json.str());
+      return rc;
+    } catch (const cli::HelpRequested&) {
+      std::cout << cli::usage::command_help(*cli::usage::find(command));
+      return cli::kExitOk;
     } catch (const cli::UsageError& e) {
       std::cerr << "ridgewatch " << command << ": " << e.what() << "\n";
       return cli::kExitUsage;
@@ -78,6 +97,6 @@ int main(int argc, char** argv) {
       return 1;
     }
   }
-  std::cerr << "ridgewatch: unknown command '" << command << "'\n" << kUsage;
+  std::cerr << "ridgewatch: unknown command '" << command << "'\n" << cli::usage::top_help();
   return cli::kExitUsage;
 }

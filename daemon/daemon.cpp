@@ -17,6 +17,7 @@
 #include "cli/event_json.hpp"
 #include "core/pipeline/stream_processor.hpp"
 #include "core/rt/spsc_ring_buffer.hpp"
+#include "daemon/capture_store.hpp"
 #include "daemon/event_log.hpp"
 #include "daemon/log_limiter.hpp"
 #include "daemon/network_outputs.hpp"
@@ -32,6 +33,9 @@ std::atomic<bool> g_reload{false};
 std::atomic<bool> g_latch_reset{false};
 
 using Clock = std::chrono::steady_clock;
+
+// Damping ratio with 4 significant digits ("-" when not estimated).
+std::string format_zeta(double zeta) { return std::isfinite(zeta) ? fmt::format("{:.4g}", zeta) : "-"; }
 
 std::string iso8601_utc(std::chrono::system_clock::time_point tp) {
   const auto secs = std::chrono::time_point_cast<std::chrono::seconds>(tp);
@@ -69,6 +73,9 @@ struct Daemon::Impl {
   std::unique_ptr<pipeline::StreamProcessor> processor;
   std::unique_ptr<LineFile> events_out, csv_out;
   std::unique_ptr<NetworkOutputs> net;  // MQTT and HTTP (null when neither is configured)
+  std::unique_ptr<CaptureStore> captures;  // null: output.capture.dir empty
+  pipeline::ImpactEvent last_event;        // for the status line
+  bool have_last_event = false;
 
   std::thread acquisition;
   std::atomic<bool> acq_stop{false};
@@ -250,7 +257,9 @@ struct Daemon::Impl {
       ++stats.events;
       if (e.status == pipeline::ImpactStatus::ok) ++stats.events_ok;
       record_latency(e);
-      if (!cfg.output.capture_dir.empty()) capture(e);
+      last_event = e;
+      have_last_event = true;
+      if (captures && captures->selected(e)) capture(e);
       if (net && net->wants_envelope(e)) {
         std::uint64_t first = 0;
         if (impact_window(e, envelope_window, first)) net->add_envelope(e, envelope_window, first);
@@ -318,8 +327,27 @@ struct Daemon::Impl {
                                   " skipped: its samples are no longer in the ring buffer");
       return;
     }
-    const std::string err = write_capture(cfg.output.capture_dir, e, source_name, window, first, fs);
-    if (!err.empty()) warn_limited("capture-write", "capture failed: " + err);
+    const std::uint64_t removed_before = captures->removed();
+    const std::string err = captures->write(e, source_name, window, first, fs);
+    stats.captures_removed += captures->removed() - removed_before;
+    ++(err.empty() ? stats.captures_written : stats.captures_failed);
+    if (!err.empty())
+      warn_limited("capture-write", "capture failed: " + err + " (" + std::to_string(stats.captures_failed) +
+                                        " failed so far); processing continues");
+  }
+
+  // A new store when the capture settings change (start, SIGHUP); the counts carry on.
+  void open_captures() {
+    const cli::CaptureConfig& c = cfg.output.capture;
+    if (c.dir.empty()) {
+      captures.reset();
+      return;
+    }
+    const auto& o = captures ? captures->config() : cli::CaptureConfig{};
+    if (captures && o.dir == c.dir && o.max_files == c.max_files && o.max_bytes == c.max_bytes && o.select == c.select)
+      return;
+    captures = std::make_unique<CaptureStore>(c);
+    stats.captures_removed += captures->removed();  // old captures over the limits, removed at start
   }
 
   void reload() {
@@ -357,6 +385,7 @@ struct Daemon::Impl {
       }
     }
     open_outputs();  // reopen (log rotation) or switch to new paths
+    open_captures();
     notifier.ready(status_text());
   }
 
@@ -366,10 +395,27 @@ struct Daemon::Impl {
   }
 
   std::string status_text() const {
-    std::string text = fmt::format("{} samples, {} impacts ({} ok), alarm {}, {} overruns, {} write failures",
-                                   stats.samples, stats.events, stats.events_ok,
-                                   processor ? pipeline::to_string(processor->trend().state().level) : "?",
-                                   stats.overruns, stats.events_failed_to_write);
+    std::string text = fmt::format("{} samples, {} impacts ({} ok), alarm {}", stats.samples, stats.events,
+                                   stats.events_ok,
+                                   processor ? pipeline::to_string(processor->trend().state().level) : "?");
+    if (have_last_event)
+      text += fmt::format(", last zeta {} ({})", format_zeta(last_event.zeta), pipeline::to_string(last_event.status));
+    if (processor) {
+      // EWMA z-score in EWMA standard deviations, the unit of alert_sigma/danger_sigma (trend_monitor.cpp).
+      const pipeline::AlarmState& a = processor->trend().state();
+      const double lambda = cfg.pipeline.trend.ewma_lambda;
+      const double z = (a.ewma_ln_zeta - a.baseline_ln_zeta) / (a.baseline_ln_sd * std::sqrt(lambda / (2.0 - lambda)));
+      if (std::isfinite(a.baseline_ln_zeta))
+        text += fmt::format(", baseline zeta {}, EWMA z {:+.2f} (alert {:g}, danger {:g})",
+                            format_zeta(std::exp(a.baseline_ln_zeta)), std::isfinite(z) ? z : 0.0,
+                            cfg.pipeline.trend.alert_sigma, cfg.pipeline.trend.danger_sigma);
+      else
+        text += ", baseline learning";
+    }
+    text += fmt::format(", {} overruns, {} write failures", stats.overruns, stats.events_failed_to_write);
+    if (captures)
+      text += fmt::format(", captures {} written, {} removed, {} failed", stats.captures_written,
+                          stats.captures_removed, stats.captures_failed);
     if (gpio.tacho) text += fmt::format(", shaft {:.1f} rpm", 60.0 * stats.shaft_hz);
     return text;
   }
@@ -405,6 +451,7 @@ int Daemon::run() {
   d.make_processor();  // UsageError propagates (exit 2): the pipeline does not fit this sample rate
   d.open_outputs();
   d.net = NetworkOutputs::start(d.cfg, d.source_name, d.fs);  // UsageError (exit 2) naming the key
+  d.open_captures();
   if (d.options.gpio_factory || d.cfg.gpio.enabled) {
     try {
       d.gpio = d.options.gpio_factory ? d.options.gpio_factory(d.cfg.gpio) : open_gpio(d.cfg.gpio);
@@ -532,6 +579,10 @@ int Daemon::run() {
     d.net->stop(std::chrono::seconds(3));  // what the broker has not acknowledged by then stays spooled
   }
   spdlog::info("stopped: {}", d.status_text());
+  if (d.captures)
+    spdlog::info("captures: {} written, {} removed to keep output.capture limits, {} failed; {} files ({} bytes) in {}",
+                 d.stats.captures_written, d.stats.captures_removed, d.stats.captures_failed, d.captures->files(),
+                 d.captures->bytes(), d.captures->config().dir);
   if (d.latency_count > 0)
     spdlog::info("event latency after the decay window: mean {:.2f} ms, max {:.2f} ms over {} events",
                  d.stats.latency_mean_ms, d.stats.latency_max_ms, d.latency_count);

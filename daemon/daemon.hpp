@@ -52,6 +52,7 @@ struct DaemonStats {
   std::uint64_t samples = 0, events = 0, events_ok = 0, overruns = 0, gaps = 0, spikes = 0;
   std::uint64_t events_failed_to_write = 0, source_errors = 0, reloads = 0, reloads_rejected = 0;
   std::uint64_t tacho_pulses = 0;
+  std::uint64_t captures_written = 0, captures_removed = 0, captures_failed = 0;  ///< output.capture
   /// Paced/live input only: time from the end of an impact's decay window (when its last sample was
   /// due from the source) to its event being written, ms. NaN when not measured.
   double latency_max_ms = NAN;

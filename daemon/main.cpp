@@ -3,6 +3,7 @@
 #include <spdlog/sinks/stdout_sinks.h>
 #include <spdlog/spdlog.h>
 
+#include <chrono>
 #include <cstdlib>
 #include <iostream>
 #include <string>
@@ -10,7 +11,11 @@
 
 #include "cli/args.hpp"
 #include "cli/config_yaml.hpp"
+#include "cli/usage.hpp"
 #include "daemon/daemon.hpp"
+#include "daemon/relay_test.hpp"
+#include "drivers/alsa_source.hpp"
+#include "drivers/gpio.hpp"
 #include "drivers/sample_source.hpp"
 #include "ridgewatch_version.hpp"
 
@@ -18,16 +23,6 @@ namespace {
 
 namespace cli = ridgewatch::cli;
 using ridgewatch::daemon::Daemon;
-
-constexpr const char* kUsage =
-    "usage: ridgewatchd [--config FILE] [--replay FILE] [--speed max|N] [--loop] [--channel N]\n"
-    "                   [--events PATH|-] [--csv PATH] [--capture-dir DIR] [--log-level LEVEL]\n"
-    "                   [--max-samples N]   (stop after N input samples, e.g. for soak runs)\n"
-    "       ridgewatchd --check-config FILE | --print-defaults | --version | --help\n"
-    "signals: TERM/INT finish the impact in progress, flush and exit 0; HUP reloads the configuration\n"
-    "         (a bad one is rejected, the old one kept) and reopens the output files; USR1 resets a\n"
-    "         latched alarm.\n"
-    "exit codes: 0 ok, 2 bad usage or configuration, 3 input (file/device) failed\n";
 
 extern "C" void on_signal(int sig) {
   switch (sig) {
@@ -58,21 +53,21 @@ void setup_logging(const std::string& level) {
 }
 
 int run(const std::vector<std::string>& argv) {
-  const cli::Args args(argv,
-                       {"--config", "--replay", "--speed", "--channel", "--events", "--csv", "--capture-dir",
-                        "--log-level", "--check-config", "--max-samples"},
-                       {"--print-defaults", "--version", "--help", "--loop"});
+  // The flags come from the usage table (cli/usage.cpp), which also makes --help and the man page.
+  const cli::Args args = cli::usage::parse(argv, cli::usage::daemon());
   if (!args.positional().empty()) throw cli::UsageError("unexpected argument '" + args.positional().front() + "'");
-  if (args.has("--help")) {
-    std::cout << kUsage;
-    return cli::kExitOk;
-  }
   if (args.has("--version")) {
     std::cout << "ridgewatchd " << RIDGEWATCH_VERSION << "\n";
     return cli::kExitOk;
   }
   if (args.has("--print-defaults")) {
     std::cout << cli::to_yaml(cli::default_config());
+    return cli::kExitOk;
+  }
+  if (args.has("--list-devices")) {
+    std::cout << "ALSA capture devices (source.alsa.device):\n"
+              << ridgewatch::drivers::describe_alsa_capture_devices() << "\nGPIO chips and lines (gpio section):\n"
+              << ridgewatch::drivers::describe_gpio_chips();
     return cli::kExitOk;
   }
   if (const auto file = args.value("--check-config")) {
@@ -103,16 +98,23 @@ int run(const std::vector<std::string>& argv) {
     }
     if (const auto e = args.value("--events")) c.output.events = *e;
     if (const auto e = args.value("--csv")) c.output.csv = *e;
-    if (const auto e = args.value("--capture-dir")) c.output.capture_dir = *e;
+    if (const auto e = args.value("--capture-dir")) c.output.capture.dir = *e;
     if (const auto e = args.value("--log-level")) c.logging.level = *e;
   };
   cli::RidgewatchConfig config = config_path ? cli::load_config_file(*config_path) : cli::default_config();
   overrides(config);
+  if (args.has("--test-relays")) {
+    if (!config.gpio.enabled) throw cli::UsageError("--test-relays: gpio.enabled is false in the configuration");
+    ridgewatch::daemon::GpioLines lines = ridgewatch::daemon::open_gpio(config.gpio);  // GpioError: exit 3
+    return ridgewatch::daemon::test_relays(lines, std::cin, std::cout, args.has("--yes"), std::chrono::seconds(2));
+  }
+  if (args.has("--yes")) throw cli::UsageError("--yes goes with --test-relays");
   if (config.source.type == "replay" && config.source.replay.path.empty())
     throw cli::UsageError("no input: set source.replay.path in the configuration or pass --replay FILE");
   if (const auto lvl = args.value("--log-level");
       lvl && *lvl != "trace" && *lvl != "debug" && *lvl != "info" && *lvl != "warn" && *lvl != "error")
     throw cli::UsageError("--log-level: '" + *lvl + "' is not one of trace, debug, info, warn, error");
+
 
   setup_logging(config.logging.level);
   install_signal_handlers();
@@ -128,12 +130,19 @@ int run(const std::vector<std::string>& argv) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  ridgewatch::drivers::silence_alsa_lib_errors();  // the daemon names the device in its own messages
   try {
     return run(std::vector<std::string>(argv + 1, argv + argc));
   } catch (const cli::UsageError& e) {
     std::cerr << "ridgewatchd: " << e.what() << "\n";
     return cli::kExitUsage;
+  } catch (const cli::HelpRequested&) {
+    std::cout << cli::usage::command_help(cli::usage::daemon(), "ridgewatchd");
+    return cli::kExitOk;
   } catch (const ridgewatch::drivers::InputError& e) {
+    std::cerr << "ridgewatchd: " << e.what() << "\n";
+    return cli::kExitBadInput;
+  } catch (const ridgewatch::drivers::GpioError& e) {
     std::cerr << "ridgewatchd: " << e.what() << "\n";
     return cli::kExitBadInput;
   } catch (const std::exception& e) {

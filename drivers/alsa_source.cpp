@@ -4,6 +4,7 @@
 #include <bit>
 #include <cerrno>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <sstream>
 #include <stdexcept>
@@ -325,6 +326,102 @@ std::string AlsaSource::last_error() const {
 void AlsaSource::set_last_error(std::string message) {
   std::lock_guard lock(error_mutex_);
   last_error_ = std::move(message);
+}
+
+}  // namespace ridgewatch::drivers
+
+namespace ridgewatch::drivers {
+
+namespace {
+extern "C" void silent_alsa_error(const char*, int, const char*, int, const char*, ...) {}
+}  // namespace
+
+void silence_alsa_lib_errors() { snd_lib_error_set_handler(silent_alsa_error); }
+
+std::string describe_alsa_capture_devices() {
+  silence_alsa_lib_errors();
+  std::ostringstream o;
+  int card = -1;
+  int cards = 0;
+  while (snd_card_next(&card) == 0 && card >= 0) {
+    ++cards;
+    const std::string ctl_name = "hw:" + std::to_string(card);
+    snd_ctl_t* ctl = nullptr;
+    if (snd_ctl_open(&ctl, ctl_name.c_str(), 0) < 0) {
+      o << "card " << card << ": cannot open its control device\n";
+      continue;
+    }
+    snd_ctl_card_info_t* info = nullptr;
+    snd_ctl_card_info_alloca(&info);
+    std::string card_id = std::to_string(card);
+    if (snd_ctl_card_info(ctl, info) == 0) {
+      card_id = snd_ctl_card_info_get_id(info);
+      o << "card " << card << " (" << card_id << "): " << snd_ctl_card_info_get_name(info) << "\n";
+    }
+    int dev = -1;
+    bool any = false;
+    while (snd_ctl_pcm_next_device(ctl, &dev) == 0 && dev >= 0) {
+      snd_pcm_info_t* pinfo = nullptr;
+      snd_pcm_info_alloca(&pinfo);
+      snd_pcm_info_set_device(pinfo, static_cast<unsigned>(dev));
+      snd_pcm_info_set_subdevice(pinfo, 0);
+      snd_pcm_info_set_stream(pinfo, SND_PCM_STREAM_CAPTURE);
+      if (snd_ctl_pcm_info(ctl, pinfo) < 0) continue;  // playback only
+      any = true;
+      const std::string hw = "hw:CARD=" + card_id + ",DEV=" + std::to_string(dev);
+      o << "  capture device " << dev << ": " << snd_pcm_info_get_name(pinfo) << "\n"
+        << "    source.alsa.device: \"" << hw << "\"  (or \"plug" << hw << "\" for rate/format conversion)\n";
+      snd_pcm_t* pcm = nullptr;
+      if (const int err = snd_pcm_open(&pcm, hw.c_str(), SND_PCM_STREAM_CAPTURE, SND_PCM_NONBLOCK); err < 0) {
+        o << "    cannot open: " << snd_strerror(err) << (err == -EBUSY ? " (in use by another program)" : "") << "\n";
+        continue;
+      }
+      snd_pcm_hw_params_t* hw_params = nullptr;
+      snd_pcm_hw_params_alloca(&hw_params);
+      if (snd_pcm_hw_params_any(pcm, hw_params) >= 0) {
+        unsigned rmin = 0, rmax = 0, cmin = 0, cmax = 0;
+        int dir = 0;
+        snd_pcm_hw_params_get_rate_min(hw_params, &rmin, &dir);
+        snd_pcm_hw_params_get_rate_max(hw_params, &rmax, &dir);
+        snd_pcm_hw_params_get_channels_min(hw_params, &cmin);
+        snd_pcm_hw_params_get_channels_max(hw_params, &cmax);
+        o << "    rates " << rmin << "-" << rmax << " Hz (51200 Hz "
+          << (snd_pcm_hw_params_test_rate(pcm, hw_params, 51200, 0) == 0 ? "accepted" : "not accepted") << ")";
+        o << "; channels " << cmin << "-" << cmax << "; formats";
+        bool fmt_any = false;
+        for (const auto& [f, name] : {std::pair{SND_PCM_FORMAT_S16_LE, "S16_LE"}, std::pair{SND_PCM_FORMAT_S32_LE, "S32_LE"},
+                                      std::pair{SND_PCM_FORMAT_FLOAT_LE, "FLOAT_LE"}})
+          if (snd_pcm_hw_params_test_format(pcm, hw_params, f) == 0) {
+            o << " " << name;
+            fmt_any = true;
+          }
+        if (!fmt_any) o << " none the daemon reads (use plughw)";
+        o << "\n";
+      }
+      snd_pcm_close(pcm);
+    }
+    if (!any) o << "  no capture devices\n";
+    snd_ctl_close(ctl);
+  }
+  if (cards == 0) o << "no ALSA sound cards (is the USB/PCI interface connected? `arecord -l` lists the same)\n";
+  // Named PCMs from the ALSA configuration (asoundrc): "default", "dsnoop", plugin definitions.
+  void** hints = nullptr;
+  if (snd_device_name_hint(-1, "pcm", &hints) == 0) {
+    o << "configured PCM names with capture:";
+    int n = 0;
+    for (void** h = hints; *h != nullptr; ++h) {
+      char* name = snd_device_name_get_hint(*h, "NAME");
+      char* io = snd_device_name_get_hint(*h, "IOID");
+      if (name != nullptr && (io == nullptr || std::string(io) == "Input")) {
+        o << (n++ % 4 == 0 ? "\n  " : "  ") << name;
+      }
+      std::free(name);
+      std::free(io);
+    }
+    o << (n == 0 ? " none\n" : "\n");
+    snd_device_name_free_hint(hints);
+  }
+  return o.str();
 }
 
 }  // namespace ridgewatch::drivers

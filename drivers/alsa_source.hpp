@@ -186,4 +186,14 @@ class AlsaSource : public SampleSource {
   std::string last_error_;
 };
 
+/// `ridgewatchd --list-devices`: every ALSA card's capture PCMs ("hw:CARD,DEV" and the name to put
+/// in source.alsa.device) with the rates, sample formats (of S16_LE, S32_LE, FLOAT_LE, the ones the
+/// daemon reads) and channel counts the hardware accepts; the names of configured PCMs (e.g. "default",
+/// "plughw"). A device that is busy is listed as such. Never throws.
+std::string describe_alsa_capture_devices();
+
+/// Routes alsa-lib's own error printing (e.g. "ALSA lib confmisc.c:...: cannot find card") away from
+/// standard error: every failure is reported by the caller with the device name instead. Idempotent.
+void silence_alsa_lib_errors();
+
 }  // namespace ridgewatch::drivers

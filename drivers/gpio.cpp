@@ -2,9 +2,13 @@
 
 #include <gpiod.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstring>
 #include <ctime>
+#include <filesystem>
+#include <sstream>
+#include <vector>
 
 namespace ridgewatch::drivers {
 
@@ -108,6 +112,47 @@ void GpiodRelayOutput::set_healthy(bool healthy) {
     return;
   }
   healthy_ = healthy;
+}
+
+}  // namespace ridgewatch::drivers
+
+namespace ridgewatch::drivers {
+
+std::string describe_gpio_chips() {
+  std::vector<std::string> chips;
+  std::error_code ec;
+  for (auto it = std::filesystem::directory_iterator("/dev", ec); !ec && it != std::filesystem::directory_iterator();
+       it.increment(ec)) {
+    const std::string name = it->path().filename().string();
+    if (name.rfind("gpiochip", 0) == 0) chips.push_back(name);
+  }
+  std::sort(chips.begin(), chips.end(), [](const std::string& a, const std::string& b) {
+    return a.size() != b.size() ? a.size() < b.size() : a < b;  // gpiochip2 before gpiochip10
+  });
+  std::ostringstream o;
+  if (chips.empty()) o << "no GPIO chips (/dev/gpiochip*); gpio.enabled must stay false on this machine\n";
+  for (const auto& name : chips) {
+    gpiod_chip* chip = gpiod_chip_open_lookup(name.c_str());
+    if (chip == nullptr) {
+      o << name << ": cannot open: " << std::strerror(errno != 0 ? errno : ENODEV)
+        << " (the service user needs the gpio group)\n";
+      continue;
+    }
+    const unsigned n = gpiod_chip_num_lines(chip);
+    o << name << " [" << gpiod_chip_label(chip) << "] " << n << " lines (gpio.chip: \"" << name << "\")\n";
+    for (unsigned i = 0; i < n; ++i) {
+      gpiod_line* line = gpiod_chip_get_line(chip, i);
+      if (line == nullptr) continue;
+      const char* lname = gpiod_line_name(line);
+      const char* consumer = gpiod_line_consumer(line);
+      o << "  line " << i << ": " << (lname ? std::string("\"") + lname + "\"" : "unnamed") << " "
+        << (gpiod_line_direction(line) == GPIOD_LINE_DIRECTION_OUTPUT ? "output" : "input")
+        << (gpiod_line_is_used(line) ? std::string(" used by \"") + (consumer ? consumer : "kernel") + "\"" : " unused")
+        << "\n";
+    }
+    gpiod_chip_close(chip);
+  }
+  return o.str();
 }
 
 }  // namespace ridgewatch::drivers

@@ -129,4 +129,8 @@ class GpiodRelayOutput : public RelayOutput {
   std::string last_error_;
 };
 
+/// `ridgewatchd --list-devices`: every GPIO chip (/dev/gpiochip*) with its label and, per line, the
+/// offset, name, direction and consumer (like gpioinfo). Never throws.
+std::string describe_gpio_chips();
+
 }  // namespace ridgewatch::drivers

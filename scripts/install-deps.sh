@@ -6,6 +6,7 @@ packages=(
   libeigen3-dev libfftw3-dev libsndfile1-dev libspdlog-dev libyaml-cpp-dev
   libgtest-dev libgmock-dev libbenchmark-dev nlohmann-json3-dev
   libasound2-dev libgpiod-dev libsystemd-dev systemd
+  dpkg-dev man-db  # the .deb (CPack, dpkg-shlibdeps) and its test (man -l)
   clang-14 libclang-rt-14-dev
   libmosquitto-dev mosquitto libcpp-httplib-dev prometheus
 )
