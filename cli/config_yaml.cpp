@@ -93,6 +93,24 @@ void walk(RidgewatchConfig& c, V& v) {
     });
     v.legacy_text("capture_dir", c.output.capture.dir);  // old spelling of capture.dir, read only
     v.text("source_name", c.output.source_name);
+    v.map("mqtt", [&] {
+      auto& m = c.output.mqtt;
+      v.text("host", m.host);
+      v.count("port", m.port, 1, 65535);
+      v.text("topic_prefix", m.topic_prefix);
+      v.text("client_id", m.client_id);
+      v.count("qos", m.qos, 0, 1);
+      v.text("username", m.username);
+      v.text("password_file", m.password_file);
+      v.map("tls", [&] {
+        v.text("ca_file", m.tls.ca_file);
+        v.text("cert_file", m.tls.cert_file);
+        v.text("key_file", m.tls.key_file);
+      });
+      v.text("spool_dir", m.spool_dir);
+      v.num("spool_max_mb", m.spool_max_mb);
+      v.num("keepalive_s", m.keepalive_s);
+    });
   });
   v.map("gpio", [&] {
     v.flag("enabled", c.gpio.enabled);
@@ -107,6 +125,7 @@ void walk(RidgewatchConfig& c, V& v) {
     v.num("repeat_interval_s", c.logging.repeat_interval_s);
     v.num("status_interval_s", c.logging.status_interval_s);
   });
+  v.map("http", [&] { v.text("listen", c.http.listen); });
 }
 
 // Parser: overlays the YAML onto the defaults, rejecting unknown keys.
@@ -269,6 +288,33 @@ void check_values(const YamlReader& r, const RidgewatchConfig& c) {
   if (!levels.count(c.logging.level)) r.fail("logging.level", "must be trace, debug, info, warn or error (got '" + c.logging.level + "')");
   if (!(c.logging.repeat_interval_s >= 0)) r.fail("logging.repeat_interval_s", "must be >= 0");
   if (!(c.logging.status_interval_s > 0)) r.fail("logging.status_interval_s", "must be > 0");
+  if (const MqttConfig& m = c.output.mqtt; !m.host.empty()) {
+    if (m.spool_dir.empty()) r.fail("output.mqtt.spool_dir", "must name a directory when output.mqtt.host is set");
+    if (!(m.spool_max_mb >= 0.01 && m.spool_max_mb <= 1e6))
+      r.fail("output.mqtt.spool_max_mb", "must be in [0.01, 1000000] MB (got " + YamlReader::format(m.spool_max_mb) + ")");
+    if (!(m.keepalive_s >= 5 && m.keepalive_s <= 65535))
+      r.fail("output.mqtt.keepalive_s", "must be in [5, 65535] s (got " + YamlReader::format(m.keepalive_s) + ")");
+    if (m.tls.cert_file.empty() != m.tls.key_file.empty())
+      r.fail("output.mqtt.tls", "cert_file and key_file must be given together");
+    if (!m.tls.cert_file.empty() && m.tls.ca_file.empty())
+      r.fail("output.mqtt.tls.ca_file", "must be set when a client certificate is given");
+    if (!m.password_file.empty() && m.username.empty())
+      r.fail("output.mqtt.username", "must be set when output.mqtt.password_file is");
+    if (m.topic_prefix.find_first_of("+#") != std::string::npos)
+      r.fail("output.mqtt.topic_prefix", "must not contain the MQTT wildcards + or #");
+  }
+  if (!c.http.listen.empty()) {
+    const auto colon = c.http.listen.rfind(':');
+    bool ok = colon != std::string::npos && colon > 0 && colon + 1 < c.http.listen.size();
+    long port = 0;
+    if (ok) {
+      const std::string p = c.http.listen.substr(colon + 1);
+      ok = p.find_first_not_of("0123456789") == std::string::npos && p.size() <= 5;
+      if (ok) port = std::stol(p);
+    }
+    if (!ok || port < 1 || port > 65535)
+      r.fail("http.listen", "must be ADDRESS:PORT with a port in [1, 65535], e.g. 127.0.0.1:9420 (got '" + c.http.listen + "')");
+  }
   if (c.gpio.enabled && c.gpio.chip.empty()) r.fail("gpio.chip", "must name a GPIO chip when gpio.enabled");
   // The pipeline's own checks. A replayed file's rate is known only when it opens (the checks run
   // again then, with the real rate); here the largest accepted rate stands in for it.

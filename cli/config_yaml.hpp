@@ -40,6 +40,32 @@ struct SourceConfig {
   double ring_buffer_s = 4.0;   ///< acquisition ring buffer length (rounded up to a power of two samples)
 };
 
+/// output.mqtt: events, status and alarm transitions to an MQTT broker (off while host is empty).
+struct MqttTlsConfig {
+  std::string ca_file;    ///< CA certificate (PEM) that verifies the broker; set to enable TLS
+  std::string cert_file;  ///< client certificate (PEM), with key_file, for mutual TLS
+  std::string key_file;
+};
+
+struct MqttConfig {
+  std::string host;               ///< broker host name or address; empty: MQTT off
+  std::size_t port = 1883;        ///< broker TCP port
+  std::string topic_prefix;       ///< empty: ridgewatch/<source_name>
+  std::string client_id;          ///< empty: ridgewatch-<source_name>
+  std::size_t qos = 1;            ///< 0 or 1 (1: the spool keeps an event until the broker's PUBACK)
+  std::string username;
+  std::string password_file;      ///< the password is read from this file, never from the config
+  MqttTlsConfig tls;
+  std::string spool_dir = "/var/lib/ridgewatch/spool";  ///< on-disk store-and-forward queue
+  double spool_max_mb = 64.0;     ///< spool size bound, MB; when full the oldest events are dropped and counted
+  double keepalive_s = 30.0;      ///< MQTT keep-alive, s
+};
+
+/// http: Prometheus /metrics and the live page (off while listen is empty).
+struct HttpConfig {
+  std::string listen;             ///< "ADDRESS:PORT", e.g. "127.0.0.1:9420"; empty: off
+};
+
 /// Capture-on-trigger (`output.capture`): each selected impact window as WAV + sidecar JSON, bounded.
 struct CaptureConfig {
   std::string dir;                      ///< "" = off; old spelling `output.capture_dir`
@@ -53,6 +79,7 @@ struct OutputConfig {
   std::string csv;                ///< optional CSV event log
   CaptureConfig capture;          ///< capture-on-trigger, oldest captures removed beyond the limits
   std::string source_name;        ///< `source` field of the events; empty: file path or ALSA device
+  MqttConfig mqtt;
 };
 
 struct GpioConfig {
@@ -76,6 +103,7 @@ struct RidgewatchConfig {
   OutputConfig output;
   GpioConfig gpio;
   LoggingConfig logging;
+  HttpConfig http;
 };
 
 /// Defaults of every key (pipeline.analyzer.clip_level: null, i.e. from the source's format).

@@ -20,6 +20,7 @@
 #include "daemon/capture_store.hpp"
 #include "daemon/event_log.hpp"
 #include "daemon/log_limiter.hpp"
+#include "daemon/network_outputs.hpp"
 #include "daemon/notifier.hpp"
 #include "daemon/sources.hpp"
 
@@ -71,6 +72,7 @@ struct Daemon::Impl {
   std::unique_ptr<rt::SpscRingBuffer<float>> ring;
   std::unique_ptr<pipeline::StreamProcessor> processor;
   std::unique_ptr<LineFile> events_out, csv_out;
+  std::unique_ptr<NetworkOutputs> net;  // MQTT and HTTP (null when neither is configured)
   std::unique_ptr<CaptureStore> captures;  // null: output.capture.dir empty
   pipeline::ImpactEvent last_event;        // for the status line
   bool have_last_event = false;
@@ -119,6 +121,7 @@ struct Daemon::Impl {
     ++latency_count;
     stats.latency_mean_ms = latency_sum_ms / static_cast<double>(latency_count);
     stats.latency_max_ms = std::isfinite(stats.latency_max_ms) ? std::max(stats.latency_max_ms, ms) : ms;
+    if (net) net->observe_latency(1e-3 * ms);
   }
 
   void warn_limited(const std::string& key, const std::string& message) {
@@ -233,6 +236,7 @@ struct Daemon::Impl {
       cli::append_event_json(batch, e, source_name, wall);
       batch += '\n';
     }
+    if (net) net->on_events(events, batch);  // MQTT: spooled before the event log is written
     if (const std::size_t lost = events_out->write_lines(batch, events.size()); lost > 0) {
       // The lines that did not make it are the block's last ones.
       stats.events_failed_to_write += lost;
@@ -260,6 +264,10 @@ struct Daemon::Impl {
       last_event = e;
       have_last_event = true;
       if (captures && captures->selected(e)) capture(e);
+      if (net && net->wants_envelope(e)) {
+        std::uint64_t first = 0;
+        if (impact_window(e, envelope_window, first)) net->add_envelope(e, envelope_window, first);
+      }
       drive_relays(e.alarm.level);
       if (e.alarm.transition()) {
         const auto level = e.alarm.level;
@@ -299,20 +307,27 @@ struct Daemon::Impl {
     }
   }
 
-  void capture(const pipeline::ImpactEvent& e) {
+  // The samples of an impact's window (pretrigger + decay) from the ring's history; false when they
+  // are gone. The window has been consumed by the processor already; a window cut by the end of the
+  // stream or a gap is taken as far as it goes.
+  bool impact_window(const pipeline::ImpactEvent& e, std::vector<float>& window, std::uint64_t& first) {
     const double pre_s = cfg.pipeline.analyzer.pretrigger_s;
     const double win_s = cfg.pipeline.analyzer.window_s;
     const auto pre = static_cast<std::uint64_t>(std::ceil(pre_s * fs));
-    const std::uint64_t first = e.sample_index > pre ? e.sample_index - pre : 0;
-    // The window has been consumed by the processor already and is still in the ring's history; a
-    // window cut by the end of the stream or a gap is captured as far as it goes.
+    first = e.sample_index > pre ? e.sample_index - pre : 0;
     auto length = static_cast<std::uint64_t>(std::ceil((pre_s + win_s) * fs));
     if (e.window_end_index > first) length = std::min(length, e.window_end_index - first);  // the analysed window
     const std::uint64_t consumed = ring->read_stream_index();
     if (first + length > consumed) length = consumed > first ? consumed - first : 0;
-    std::vector<float> window(static_cast<std::size_t>(length));
-    const auto status = length > 0 ? ring->copy_lookback(first, window) : rt::LookbackStatus::not_yet_consumed;
-    if (status != rt::LookbackStatus::ok) {
+    window.resize(static_cast<std::size_t>(length));
+    return length > 0 && ring->copy_lookback(first, window) == rt::LookbackStatus::ok;
+  }
+  std::vector<float> envelope_window;
+
+  void capture(const pipeline::ImpactEvent& e) {
+    std::vector<float> window;
+    std::uint64_t first = 0;
+    if (!impact_window(e, window, first)) {
       warn_limited("capture", "capture of the impact at sample " + std::to_string(e.sample_index) +
                                   " skipped: its samples are no longer in the ring buffer");
       return;
@@ -353,6 +368,10 @@ struct Daemon::Impl {
             next.source.alsa.device != cfg.source.alsa.device)
           spdlog::warn("SIGHUP: source changes take effect after a restart; keeping the current source");
         next.source = cfg.source;
+        if (next.output.mqtt.host != cfg.output.mqtt.host || next.http.listen != cfg.http.listen)
+          spdlog::warn("SIGHUP: output.mqtt and http changes take effect after a restart; keeping the current ones");
+        next.output.mqtt = cfg.output.mqtt;
+        next.http = cfg.http;
         // Check the new pipeline at the real sample rate before touching anything.
         pipeline::PipelineConfig p = next.pipeline;
         p.sample_rate_hz = fs;
@@ -373,6 +392,11 @@ struct Daemon::Impl {
     open_outputs();  // reopen (log rotation) or switch to new paths
     open_captures();
     notifier.ready(status_text());
+  }
+
+  DaemonCounters counters() const {
+    return {stats.samples, processor->impacts_detected(), ring->overrun_items(), processor->gaps_seen(),
+            processor->spikes_seen(), stats.events_failed_to_write};
   }
 
   std::string status_text() const {
@@ -431,6 +455,7 @@ int Daemon::run() {
   d.source_name = !d.cfg.output.source_name.empty() ? d.cfg.output.source_name : info.name;
   d.make_processor();  // UsageError propagates (exit 2): the pipeline does not fit this sample rate
   d.open_outputs();
+  d.net = NetworkOutputs::start(d.cfg, d.source_name, d.fs);  // UsageError (exit 2) naming the key
   d.open_captures();
   if (d.options.gpio_factory || d.cfg.gpio.enabled) {
     try {
@@ -522,6 +547,7 @@ int Daemon::run() {
     }
 
     d.poll_tacho();
+    if (d.net) d.net->poll(d.counters());
     const auto now = Clock::now();
     // Watchdog: ping only while samples keep arriving, so a stalled input gets the service restarted.
     if (d.notifier.watchdog_enabled() && now - last_ping >= d.notifier.watchdog_interval() / 3) {
@@ -563,6 +589,11 @@ int Daemon::run() {
   d.stats.spikes = d.processor->spikes_seen();
   d.events_out->sync();
   if (d.csv_out) d.csv_out->sync();
+  if (d.net) {
+    d.net->poll(d.counters(), true);
+    if (d.options.before_network_stop) d.options.before_network_stop(d.net->http_port());
+    d.net->stop(std::chrono::seconds(3));  // what the broker has not acknowledged by then stays spooled
+  }
   spdlog::info("stopped: {}", d.status_text());
   if (d.captures)
     spdlog::info("captures: {} written, {} removed to keep output.capture limits, {} failed; {} files ({} bytes) in {}",

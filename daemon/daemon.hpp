@@ -42,6 +42,9 @@ struct DaemonOptions {
   /// Stop acquiring after this many samples (0: no limit): the end of input then, as for a file
   /// (accelerated soak runs with --loop; `ridgewatchd --max-samples N`).
   std::uint64_t max_samples = 0;
+  /// Tests: called on the processing thread after the last event was written, while the HTTP
+  /// listener still serves (argument: its port, 0 when off) and before MQTT drains and stops.
+  std::function<void(int http_port)> before_network_stop;
 };
 
 /// Counters for the status line, tests and the exit summary.

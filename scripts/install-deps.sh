@@ -8,6 +8,7 @@ packages=(
   libasound2-dev libgpiod-dev libsystemd-dev systemd
   dpkg-dev man-db  # the .deb (CPack, dpkg-shlibdeps) and its test (man -l)
   clang-14 libclang-rt-14-dev
+  libmosquitto-dev mosquitto libcpp-httplib-dev prometheus
 )
 missing=()
 for p in "${packages[@]}"; do

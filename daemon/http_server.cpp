@@ -1,0 +1,69 @@
+#include "daemon/http_server.hpp"
+
+#include <httplib.h>
+
+#include <thread>
+
+#include "cli/args.hpp"
+#include "daemon/web_index_html.hpp"
+
+namespace ridgewatch::daemon {
+
+const std::string& live_page_html() {
+  static const std::string page(kLivePageHtml);
+  return page;
+}
+
+struct HttpServer::Impl {
+  httplib::Server server;
+  std::thread thread;
+  int port = 0;
+};
+
+HttpServer::HttpServer(const std::string& listen, const Telemetry& telemetry) : impl_(std::make_unique<Impl>()) {
+  const auto colon = listen.rfind(':');
+  if (colon == std::string::npos) throw cli::UsageError("http.listen: must be ADDRESS:PORT (got '" + listen + "')");
+  std::string host = listen.substr(0, colon);
+  if (host.size() >= 2 && host.front() == '[' && host.back() == ']') host = host.substr(1, host.size() - 2);
+  const int port = std::stoi(listen.substr(colon + 1));
+  auto& s = impl_->server;
+  // Two workers are plenty for a scrape every few seconds and a page or two polling once a second
+  // (the library's default is 8 threads or more).
+  s.new_task_queue = [] { return new httplib::ThreadPool(2); };
+  // The library's default also sets SO_REUSEPORT, which would let a second process share (and take
+  // requests from) a port already in use; only SO_REUSEADDR (fast restarts) is wanted.
+  s.set_socket_options([](socket_t sock) {
+    int yes = 1;
+    ::setsockopt(sock, SOL_SOCKET, SO_REUSEADDR, &yes, sizeof yes);
+  });
+  s.Get("/metrics", [&telemetry](const httplib::Request&, httplib::Response& res) {
+    res.set_content(telemetry.prometheus_text(), "text/plain; version=0.0.4; charset=utf-8");
+  });
+  s.Get("/api/state", [&telemetry](const httplib::Request&, httplib::Response& res) {
+    res.set_header("Cache-Control", "no-store");
+    res.set_content(telemetry.state_json(), "application/json");
+  });
+  s.Get("/healthz", [](const httplib::Request&, httplib::Response& res) { res.set_content("ok\n", "text/plain"); });
+  s.Get("/", [](const httplib::Request&, httplib::Response& res) {
+    res.set_header("Content-Security-Policy", "default-src 'self'; script-src 'unsafe-inline'; style-src 'unsafe-inline'");
+    res.set_content(live_page_html(), "text/html; charset=utf-8");
+  });
+  if (port == 0) {
+    impl_->port = s.bind_to_any_port(host);
+    if (impl_->port < 0) throw cli::UsageError("http.listen: cannot listen on '" + listen + "'");
+  } else {
+    if (!s.bind_to_port(host, port))
+      throw cli::UsageError("http.listen: cannot listen on '" + listen + "' (address in use or not local?)");
+    impl_->port = port;
+  }
+  impl_->thread = std::thread([this] { impl_->server.listen_after_bind(); });
+}
+
+HttpServer::~HttpServer() {
+  impl_->server.stop();
+  if (impl_->thread.joinable()) impl_->thread.join();
+}
+
+int HttpServer::port() const { return impl_->port; }
+
+}  // namespace ridgewatch::daemon

@@ -1,0 +1,251 @@
+// The HTTP listener: /metrics checked by `promtool check metrics` (Prometheus' own parser and linter)
+// with counters equal to the events the daemon wrote, label escaping, loopback-only by default, and
+// the live page in a real headless Chromium (shows the replayed events and the alarm state, updates
+// as new events arrive; a phone-sized screenshot is kept in test-artifacts/).
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <nlohmann/json.hpp>
+#include <regex>
+#include <sstream>
+#include <thread>
+
+#include "cli/config_yaml.hpp"
+#include "cli_runner.hpp"
+#include "daemon/daemon.hpp"
+#include "daemon/http_server.hpp"
+#include "daemon/metrics.hpp"
+#include "net_test_support.hpp"
+#include "process_runner.hpp"
+// GCC 12 -O2 reports a false -Wstringop-overflow inside the generator's WAV writer in this
+// translation unit (see test_mqtt.cpp).
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wstringop-overflow"
+#include "support/indep_signals.hpp"
+#pragma GCC diagnostic pop
+
+using ridgewatch::test::ChildProcess;
+using ridgewatch::test::http_get;
+using ridgewatch::test::wait_for;
+namespace fs = std::filesystem;
+using json = nlohmann::json;
+using namespace std::chrono_literals;
+
+namespace {
+
+const std::string kReplay = std::string(RIDGEWATCH_SOURCE_DIR) + "/replay-data/sim-noise.wav";
+
+fs::path temp_dir(const std::string& name) {
+  const auto d = fs::temp_directory_path() / ("ridgewatch-http-" + name + "-" + std::to_string(::getpid()));
+  fs::remove_all(d);
+  fs::create_directories(d);
+  return d;
+}
+
+std::vector<json> read_jsonl(const fs::path& p) {
+  std::vector<json> out;
+  std::ifstream f(p);
+  std::string line;
+  while (std::getline(f, line)) out.push_back(json::parse(line));
+  return out;
+}
+
+// An independent record (no code shared with core/model) whose damping steps up half-way, so that
+// the trend goes learning -> normal -> alert/danger: 4 s + 4 s at 25 impacts/s (the daemon learns
+// its baseline from 50 events).
+std::pair<std::string, std::size_t> stepped_record(const fs::path& dir) {
+  namespace ind = indep;
+  ind::RigSpec s;
+  s.duration_s = 4.0;
+  s.response.amplitude = 0.4;
+  s.response.zeta = 0.02;
+  s.noise_sd = 0.002;
+  s.seed = 7;
+  auto a = ind::make_rig_record(s);
+  s.response.zeta = 0.035;  // +75 %: far beyond the danger limit of a 1-2 % spread
+  s.seed = 8;
+  const auto b = ind::make_rig_record(s);
+  a.x.insert(a.x.end(), b.x.begin(), b.x.end());
+  const std::string path = (dir / "stepped.wav").string();
+  ind::write_wav_mono(path, a.x, a.fs_hz, ind::SampleFormat::pcm16);
+  return {path, a.x.size()};
+}
+
+// Samples of the exposition text: "name{labels}" -> value (independent of the code under test).
+std::map<std::string, double> parse_samples(const std::string& text) {
+  std::map<std::string, double> out;
+  std::istringstream in(text);
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.empty() || line[0] == '#') continue;
+    const auto sp = line.rfind(' ');
+    const std::string v = line.substr(sp + 1);
+    out[line.substr(0, sp)] = v == "NaN" ? NAN : v == "+Inf" ? INFINITY : std::stod(v);
+  }
+  return out;
+}
+
+int promtool_check(const fs::path& file, std::string* output) {
+  const auto out = file.string() + ".promtool";
+  const int rc = std::system(("promtool check metrics < " + file.string() + " > " + out + " 2>&1").c_str());
+  *output = ridgewatch::test::slurp(out);
+  return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
+}
+
+}  // namespace
+
+// Acceptance: /metrics passes promtool, and its counters equal the events written to the log.
+TEST(Metrics, PromtoolAcceptsThemAndCountersEqualTheEventLog) {
+  if (std::system("command -v promtool >/dev/null 2>&1") != 0) GTEST_SKIP() << "promtool (package prometheus) not installed";
+  const auto dir = temp_dir("metrics");
+  const auto [file, samples] = stepped_record(dir);
+  ridgewatch::daemon::DaemonOptions options;
+  options.config = ridgewatch::cli::default_config();
+  options.config.source.replay.path = file;
+  options.config.source.replay.speed = 0.0;
+  options.config.pipeline.trend.baseline_events = 50;
+  options.config.output.events = (dir / "ev.jsonl").string();
+  options.config.http.listen = "127.0.0.1:0";  // any free port
+  std::string metrics, state, page;
+  int page_status = 0;
+  options.before_network_stop = [&](int port) {
+    metrics = http_get(port, "/metrics");
+    state = http_get(port, "/api/state");
+    page = http_get(port, "/", &page_status);
+  };
+  ridgewatch::daemon::Daemon::clear_requests();
+  ridgewatch::daemon::Daemon daemon(options);
+  ASSERT_EQ(daemon.run(), 0);
+
+  ASSERT_FALSE(metrics.empty());
+  std::ofstream(dir / "metrics.txt") << metrics;
+  std::string lint;
+  EXPECT_EQ(promtool_check(dir / "metrics.txt", &lint), 0) << lint << metrics;
+  EXPECT_TRUE(lint.empty()) << lint;  // no lint warnings either
+
+  const auto events = read_jsonl(dir / "ev.jsonl");
+  ASSERT_GT(events.size(), 190u);  // 8 s at 25 impacts/s
+  std::map<std::string, double> by_status;
+  for (const auto& e : events) by_status[e["status"].get<std::string>()] += 1;
+  const auto m = parse_samples(metrics);
+  double sum = 0;
+  for (const auto& [k, v] : m)
+    if (k.rfind("ridgewatch_events_total{", 0) == 0) sum += v;
+  EXPECT_EQ(sum, static_cast<double>(events.size()));
+  for (const auto& [status, n] : by_status) EXPECT_EQ(m.at("ridgewatch_events_total{status=\"" + status + "\"}"), n) << status;
+  EXPECT_EQ(m.at("ridgewatch_impacts_detected_total"), static_cast<double>(events.size()));
+  EXPECT_EQ(m.at("ridgewatch_samples_total"), static_cast<double>(samples));
+  // Current trend values = those of the last event (the exposition prints 17 significant digits).
+  const json& last = events.back();
+  const std::map<std::string, double> level = {{"learning", 0}, {"normal", 1}, {"alert", 2}, {"danger", 3}};
+  EXPECT_EQ(m.at("ridgewatch_alarm_level"), level.at(last["alarm"].get<std::string>()));
+  EXPECT_EQ(last["alarm"], "danger");  // the step up was seen
+  EXPECT_NEAR(m.at("ridgewatch_damping_ewma_ratio"), std::exp(last["alarm_detail"]["ewma_ln_zeta"].get<double>()), 1e-15);
+  EXPECT_NEAR(m.at("ridgewatch_damping_baseline_ratio"), last["alarm_detail"]["baseline_zeta"].get<double>(), 1e-15);
+  EXPECT_EQ(m.at("ridgewatch_cusum{direction=\"up\"}"), last["alarm_detail"]["cusum_up"].get<double>());
+  double transitions = 0;
+  for (const auto& e : events) transitions += e["alarm_detail"]["transition"].get<bool>();
+  EXPECT_EQ(m.at("ridgewatch_alarm_transitions_total"), transitions);
+  // As fast as possible: no latency is measured, the histogram is empty but well-formed.
+  EXPECT_EQ(m.at("ridgewatch_event_latency_seconds_count"), 0.0);
+  EXPECT_EQ(m.at("ridgewatch_mqtt_enabled"), 0.0);
+  EXPECT_NE(metrics.find("ridgewatch_build_info{version=\""), std::string::npos);
+
+  // The page's data agrees too, and the page itself is served.
+  const json s = json::parse(state);
+  EXPECT_EQ(s["events"], events.size());
+  EXPECT_EQ(s["alarm"]["level"], "danger");
+  EXPECT_EQ(page_status, 200);
+  EXPECT_NE(page.find("<title>ridgewatch</title>"), std::string::npos);
+  EXPECT_EQ(page.find("src=\"http"), std::string::npos);  // nothing loaded from elsewhere
+}
+
+// Label values with quotes, backslashes and newlines are escaped as the text format requires.
+TEST(Metrics, LabelValuesAreEscaped) {
+  if (std::system("command -v promtool >/dev/null 2>&1") != 0) GTEST_SKIP() << "promtool (package prometheus) not installed";
+  EXPECT_EQ(ridgewatch::daemon::prometheus_escape("a\"b\\c\nd"), "a\\\"b\\\\c\\nd");
+  ridgewatch::daemon::Telemetry t("rig \"7\" C:\\data\nline2", "1.0", ridgewatch::trend::TrendConfig{}, 51200.0);
+  const std::string text = t.prometheus_text();
+  EXPECT_NE(text.find("source=\"rig \\\"7\\\" C:\\\\data\\nline2\""), std::string::npos) << text;
+  const auto dir = temp_dir("escape");
+  std::ofstream(dir / "m.txt") << text;
+  std::string lint;
+  EXPECT_EQ(promtool_check(dir / "m.txt", &lint), 0) << lint;
+}
+
+// A bad or taken listen address is a configuration error naming http.listen (exit 2).
+TEST(Metrics, ListenErrorsNameTheKey) {
+  const auto dir = temp_dir("listen");
+  {
+    std::ofstream(dir / "bad.yaml") << "http:\n  listen: \"localhost\"\n";
+    ChildProcess d({RIDGEWATCHD_PATH, "--check-config", (dir / "bad.yaml").string()}, {}, (dir / "o").string(),
+                   (dir / "e").string());
+    EXPECT_EQ(d.wait(10s), 2);
+    EXPECT_NE(ridgewatch::test::slurp(dir / "e").find("http.listen"), std::string::npos);
+  }
+  // The port is taken by another listener.
+  const int port = ridgewatch::test::free_loopback_port();
+  ridgewatch::daemon::Telemetry t("x", "1", ridgewatch::trend::TrendConfig{}, 51200.0);
+  ridgewatch::daemon::HttpServer first("127.0.0.1:" + std::to_string(port), t);
+  std::ofstream(dir / "taken.yaml") << "http:\n  listen: \"127.0.0.1:" << port << "\"\n";
+  ChildProcess d({RIDGEWATCHD_PATH, "--config", (dir / "taken.yaml").string(), "--replay", kReplay, "--events",
+                  (dir / "ev").string()},
+                 {}, (dir / "o2").string(), (dir / "e2").string());
+  EXPECT_EQ(d.wait(10s), 2);
+  EXPECT_NE(ridgewatch::test::slurp(dir / "e2").find("http.listen"), std::string::npos) << ridgewatch::test::slurp(dir / "e2");
+}
+
+// Acceptance: the live page in a real headless Chromium shows the replayed events and the alarm
+// state, and updates by itself as new events arrive.
+TEST(LivePage, HeadlessChromiumShowsEventsAndAlarmAndUpdates) {
+  if (std::system("command -v chromium >/dev/null 2>&1") != 0) GTEST_SKIP() << "chromium not installed";
+  const auto dir = temp_dir("page");
+  const int port = ridgewatch::test::free_loopback_port();
+  std::ofstream(dir / "c.yaml") << "http:\n  listen: \"127.0.0.1:" << port << "\"\noutput:\n  source_name: \"rig-page\"\n";
+  // 2x real time, looping: ~50 new events per second while the browser watches.
+  ChildProcess d({RIDGEWATCHD_PATH, "--config", (dir / "c.yaml").string(), "--replay", kReplay, "--speed", "2", "--loop",
+                  "--events", (dir / "ev.jsonl").string()},
+                 {}, (dir / "o").string(), (dir / "e").string());
+  ASSERT_TRUE(wait_for([&] { return read_jsonl(dir / "ev.jsonl").size() >= 30; }, 20s)) << ridgewatch::test::slurp(dir / "e");
+  const std::string url = "http://127.0.0.1:" + std::to_string(port) + "/";
+  const std::string chrome = "chromium --headless --no-sandbox --disable-gpu --no-first-run --disable-extensions "
+                             "--disable-background-networking --disable-sync --user-data-dir=" + (dir / "profile").string() +
+                             " --window-size=412,1400 ";
+  // Virtual time runs the page's 1 s polling timer; fetches to the daemon take real time, during
+  // which the daemon keeps replaying, so later polls show more events.
+  const std::string dom_file = (dir / "dom.html").string();
+  ASSERT_EQ(std::system((chrome + "--virtual-time-budget=6000 --dump-dom " + url + " > " + dom_file + " 2>" +
+                         (dir / "chromium.err").string()).c_str()), 0)
+      << ridgewatch::test::slurp(dir / "chromium.err");
+  const std::string dom = ridgewatch::test::slurp(dom_file);
+  std::smatch m;
+  ASSERT_TRUE(std::regex_search(dom, m, std::regex("data-events=\"([0-9]+)\""))) << dom.substr(0, 2000);
+  const std::size_t shown = std::stoul(m[1]);
+  ASSERT_TRUE(std::regex_search(dom, m, std::regex("data-first-events=\"([0-9]+)\"")));
+  const std::size_t first_shown = std::stoul(m[1]);
+  EXPECT_GT(shown, first_shown) << "the page did not update while new events arrived";
+  EXPECT_GE(first_shown, 30u);
+  // The newest event the page lists is one the daemon wrote: same number, same time, same zeta.
+  const auto logged = read_jsonl(dir / "ev.jsonl");
+  ASSERT_GE(logged.size(), shown);
+  const json& newest = logged[shown - 1];
+  ASSERT_TRUE(std::regex_search(dom, m, std::regex("<tr class=\"ev\"><td>([0-9]+)</td><td>([0-9.]+)</td>")));
+  EXPECT_EQ(std::stoul(m[1]), shown);
+  char t_text[32];
+  std::snprintf(t_text, sizeof t_text, "%.3f", newest["t_s"].get<double>());
+  EXPECT_EQ(m[2].str(), t_text);
+  // The alarm badge shows the level of the newest event.
+  ASSERT_TRUE(std::regex_search(dom, m, std::regex("<span id=\"alarm\" class=\"([a-z]+)\">([a-z]+)</span>")));
+  EXPECT_EQ(m[2].str(), newest["alarm"].get<std::string>());
+  EXPECT_NE(dom.find("<circle"), std::string::npos);  // the trend was drawn
+  // A phone-sized screenshot for people to look at (test-artifacts/ in the test's working directory).
+  fs::create_directories("test-artifacts");
+  const std::string shot = (fs::current_path() / "test-artifacts" / "live-page.png").string();
+  std::system((chrome + "--virtual-time-budget=3000 --hide-scrollbars --screenshot=" + shot + " " + url + " >/dev/null 2>&1").c_str());
+  EXPECT_GT(fs::exists(shot) ? fs::file_size(shot) : 0, 10000u);
+  d.signal(SIGTERM);
+  EXPECT_EQ(d.wait(10s), 0);
+}
