@@ -50,6 +50,10 @@ struct DiagnoseResult {
   double baseline_excess = 0.0;
   std::vector<CandidateOutcome> steps;   ///< every candidate tried, in order
   std::vector<std::string> verdict;      ///< accepted effects in order
+  /// Candidates that explain the data about as well as an accepted one (or as each other when none
+  /// could be told apart): the verdict names none of them alone. Empty when the choice was clear.
+  std::vector<std::string> ambiguous;
+  std::string ambiguous_evidence;        ///< why they could not be told apart (words)
   double final_excess = 0.0;
   double final_fit_percent = 0.0;
   bool unexplained = false;
