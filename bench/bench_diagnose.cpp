@@ -232,6 +232,33 @@ int timing() {
   return 0;
 }
 
+// Issue 14's case: a second mode near f0 (930 Hz, ζ 0.02, participation 0.5), 1 % noise, seeds 1-3,
+// 25.6 and 51.2 kHz, ridgewatch's own simulator; the verdict must be exactly second_mode.
+int second_mode_930() {
+  int right = 0, n = 0;
+  for (double rate : {25600.0, 51200.0})
+    for (int seed = 1; seed <= 3; ++seed) {
+      rm::RigParameters rig;
+      rig.crack_angle_rad = 1.0;
+      const auto y = record(rig, {{"second_mode", {{"frequency_hz", 930.0}, {"damping_ratio", 0.02}, {"participation", 0.5}}}}, 0.01,
+                            0.64, static_cast<std::uint64_t>(seed), rate);
+      const auto seg = rd::subset_windows(rd::segment_recording(y, rate, rig), 16);
+      const rd::ModelFitter fitter(y, seg, rig);
+      const auto res = rd::diagnose(fitter, {});
+      std::string acc;
+      for (const auto& v : res.verdict) acc += (acc.empty() ? "" : "+") + v;
+      const bool ok = acc == "second_mode";
+      std::printf("rate %.0f seed %d: verdict %s, excess %.3g -> %.3g, unexplained %d %s\n", rate, seed, acc.c_str(),
+                  res.baseline_excess, res.final_excess, res.unexplained ? 1 : 0, ok ? "ok" : "WRONG");
+      if (!ok || std::getenv("RW_STEPS")) print_steps(res);
+      std::fflush(stdout);
+      right += ok;
+      ++n;
+    }
+  std::printf("second_mode_930: %d / %d exactly second_mode\n", right, n);
+  return 0;
+}
+
 // Confusion matrix on the independent generator: one row per hidden effect, the verdicts counted.
 int indep_sweep(int seeds, const std::string& only, double duration, double size_factor, double rate) {
   namespace ig = ridgewatch::testsupport::indep;
@@ -302,6 +329,7 @@ int main(int argc, char** argv) {
   const std::string mode = argc > 1 ? argv[1] : "time";
   if (mode == "sweep") return sweep(argc > 2 ? std::atoi(argv[2]) : 3, argc > 3 ? argv[3] : "");
   if (mode == "fit" && argc > 4) return fit_one(argv[2], std::atof(argv[3]), std::atoi(argv[4]), {argv + 5, argv + argc});
+  if (mode == "sm930") return second_mode_930();
   if (mode == "indep")
     return indep_sweep(argc > 2 ? std::atoi(argv[2]) : 3, argc > 3 ? argv[3] : "", argc > 4 ? std::atof(argv[4]) : 2.0,
                        argc > 5 ? std::atof(argv[5]) : 1.0, argc > 6 ? std::atof(argv[6]) : 51200.0);
