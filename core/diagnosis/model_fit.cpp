@@ -34,7 +34,10 @@ std::vector<GlobalParameter> ModelFitter::layout(const std::vector<std::string>&
   // and 2 times the rig's (wider lets a wrong model use it to mimic other physics). Measured on records of an independent generator with a Hann pulse: with
   // the length fixed, the held-out excess of a control stays at 0.04-0.12 (the pulse shape alone);
   // fitted, at the noise (issue 14).
-  g.push_back({"pulse_duration_s", "", "", Transform::kLog, 0.5 * rig_.impact_duration_s, 2.0 * rig_.impact_duration_s});
+  // Not with a mesh-periodic effect: there the steady forced response is up to 1000x the noise and
+  // the extra global left a held-out excess of 1.5-5 where the fixed pulse leaves 0.1 (measured on
+  // both generators; not understood yet, issue 14).
+  if (!mesh) g.push_back({"pulse_duration_s", "", "", Transform::kLog, 0.5 * rig_.impact_duration_s, 2.0 * rig_.impact_duration_s});
   return g;
 }
 
