@@ -6,6 +6,9 @@
 //                                        impacts (wall and CPU seconds)
 //   bench_diagnose one CASE NOISE SEED   every candidate step of one sweep case (debugging)
 //   bench_diagnose fit CASE NOISE SEED [EFFECT]... [NAME=START]...   one cold fit of a model
+//   bench_diagnose indep [seeds] [case] [duration_s] [size_factor] [rate]   records from the independent
+//                                        generator (tests/support/indep_gear.hpp, no code shared with
+//                                        core/model): confusion matrix of the verdicts
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -17,6 +20,7 @@
 
 #include "core/diagnosis/diagnose.hpp"
 #include "core/model/simulator.hpp"
+#include "../tests/support/indep_gear.hpp"
 
 namespace rd = ridgewatch::diagnosis;
 namespace rm = ridgewatch::model;
@@ -228,12 +232,107 @@ int timing() {
   return 0;
 }
 
+// Issue 14's case: a second mode near f0 (930 Hz, ζ 0.02, participation 0.5), 1 % noise, seeds 1-3,
+// 25.6 and 51.2 kHz, ridgewatch's own simulator; the verdict must be exactly second_mode.
+int second_mode_930() {
+  int right = 0, n = 0;
+  for (double rate : {25600.0, 51200.0})
+    for (int seed = 1; seed <= 3; ++seed) {
+      rm::RigParameters rig;
+      rig.crack_angle_rad = 1.0;
+      const auto y = record(rig, {{"second_mode", {{"frequency_hz", 930.0}, {"damping_ratio", 0.02}, {"participation", 0.5}}}}, 0.01,
+                            0.64, static_cast<std::uint64_t>(seed), rate);
+      const auto seg = rd::subset_windows(rd::segment_recording(y, rate, rig), 16);
+      const rd::ModelFitter fitter(y, seg, rig);
+      const auto res = rd::diagnose(fitter, {});
+      std::string acc;
+      for (const auto& v : res.verdict) acc += (acc.empty() ? "" : "+") + v;
+      const bool ok = acc == "second_mode";
+      std::printf("rate %.0f seed %d: verdict %s, excess %.3g -> %.3g, unexplained %d %s\n", rate, seed, acc.c_str(),
+                  res.baseline_excess, res.final_excess, res.unexplained ? 1 : 0, ok ? "ok" : "WRONG");
+      if (!ok || std::getenv("RW_STEPS")) print_steps(res);
+      std::fflush(stdout);
+      right += ok;
+      ++n;
+    }
+  std::printf("second_mode_930: %d / %d exactly second_mode\n", right, n);
+  return 0;
+}
+
+// Confusion matrix on the independent generator: one row per hidden effect, the verdicts counted.
+int indep_sweep(int seeds, const std::string& only, double duration, double size_factor, double rate) {
+  namespace ig = ridgewatch::testsupport::indep;
+  std::printf("| hidden | seed | verdict | ambiguous | unexplained | baseline -> final excess | s |\n|---|---|---|---|---|---|---|\n");
+  struct Row {
+    std::string name;
+    int n = 0, right = 0;
+    std::vector<std::string> verdicts;
+  };
+  std::vector<Row> rows;
+  for (const auto& c : ig::sweep_cases()) {
+    if (!only.empty() && c.name != only) continue;
+    Row row;
+    row.name = c.name;
+    const int n_seeds = c.name == "none" ? std::max(seeds, 10) : seeds;
+    for (int seed = 1; seed <= n_seeds; ++seed) {
+      ig::Settings st = c.settings;
+      if (c.name != "contact_loss") {
+        st.size *= size_factor;
+      }
+      st.seed = static_cast<std::uint64_t>(seed) * 104729u + 17u;
+      st.duration_s = duration;
+      st.sample_rate_hz = rate;
+      st.half_sine_pulse = std::getenv("RW_HALF_SINE") != nullptr;
+      const auto t0 = std::chrono::steady_clock::now();
+      const auto rec = ig::generate(st);
+      rm::RigParameters rig;  // the paper rig as the user describes it (config/rigs/paper-rig*.yaml)
+      rig.crack_angle_rad = 1.0;
+      rig.load_torque_n_m = st.load_torque_n_m;
+      const auto seg = rd::subset_windows(rd::segment_recording(rec.y, rate, rig), 16);
+      const rd::ModelFitter fitter(rec.y, seg, rig);
+      const auto res = rd::diagnose(fitter, {});
+      const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      std::string acc, amb;
+      for (const auto& v : res.verdict) acc += (acc.empty() ? "" : "+") + v;
+      for (const auto& a : res.ambiguous) amb += (amb.empty() ? "" : "|") + a;
+      if (acc.empty()) acc = "none";
+      std::string want = c.name;
+      if (want == "mesh_stiffness_variation+lines") want = "mesh_stiffness_variation";
+      const bool right = c.in_catalogue ? acc == want : (res.verdict.empty() && res.unexplained);
+      std::printf("| %s | %d | %s | %s | %s | %.3g -> %.3g | %.1f |\n", c.name.c_str(), seed, acc.c_str(),
+                  amb.empty() ? "-" : amb.c_str(), res.unexplained ? "yes" : "no", res.baseline_excess, res.final_excess, secs);
+      std::fflush(stdout);
+      ++row.n;
+      row.right += right;
+      row.verdicts.push_back(acc + (res.unexplained ? " (unexplained)" : ""));
+    }
+    rows.push_back(row);
+  }
+  std::printf("\n| hidden | right | verdicts |\n|---|---|---|\n");
+  for (const auto& r : rows) {
+    std::vector<std::pair<std::string, int>> counts;
+    for (const auto& v : r.verdicts) {
+      auto it = std::find_if(counts.begin(), counts.end(), [&](const auto& p) { return p.first == v; });
+      if (it == counts.end()) counts.push_back({v, 1});
+      else ++it->second;
+    }
+    std::string txt;
+    for (const auto& [v, k] : counts) txt += (txt.empty() ? "" : ", ") + v + " ×" + std::to_string(k);
+    std::printf("| %s | %d/%d | %s |\n", r.name.c_str(), r.right, r.n, txt.c_str());
+  }
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   const std::string mode = argc > 1 ? argv[1] : "time";
   if (mode == "sweep") return sweep(argc > 2 ? std::atoi(argv[2]) : 3, argc > 3 ? argv[3] : "");
   if (mode == "fit" && argc > 4) return fit_one(argv[2], std::atof(argv[3]), std::atoi(argv[4]), {argv + 5, argv + argc});
+  if (mode == "sm930") return second_mode_930();
+  if (mode == "indep")
+    return indep_sweep(argc > 2 ? std::atoi(argv[2]) : 3, argc > 3 ? argv[3] : "", argc > 4 ? std::atof(argv[4]) : 2.0,
+                       argc > 5 ? std::atof(argv[5]) : 1.0, argc > 6 ? std::atof(argv[6]) : 51200.0);
   if (mode == "one" && argc > 4) return one(argv[2], std::atof(argv[3]), std::atoi(argv[4]));
   return timing();
 }

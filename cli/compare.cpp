@@ -72,6 +72,8 @@ int run_compare(const std::vector<std::string>& argv, std::ostream& out, std::os
   const auto& c0 = fit.estimates[0];
   const double f0_nom = l.rig.rig.natural_frequency_hz();
   const auto problems = diagnosis::sensor_problems(l.seg, static_cast<double>(l.y.size()) / l.seg.sample_rate_hz);
+  // A record the rig cannot describe (another structure, a wrong rig file): flagged, exit 3.
+  const auto undescribed = diagnosis::description_problems(fitter, fit, rep);
 
   if (args.has("--json")) {
     nlohmann::json j;
@@ -96,10 +98,13 @@ int run_compare(const std::vector<std::string>& argv, std::ostream& out, std::os
     j["fit_percent"] = fit.fit_percent;
     j["residual"] = diag::report_json(rep);
     j["sensor_problems"] = problems;
+    j["describable"] = undescribed.empty();
+    j["not_describable_because"] = undescribed;
     out << j.dump() << "\n";
   }
   std::ostringstream text;
   write_text(text, l, fit, rep, problems);
+  for (const auto& u : undescribed) text << "  NOT DESCRIBED BY THE RIG: " << u << "\n";
   if (!args.has("--json")) out << text.str();
   if (!l.ignored.empty()) {
     err << "compare: rig model.effects not fitted (sensor/kinematics):";
@@ -117,6 +122,11 @@ int run_compare(const std::vector<std::string>& argv, std::ostream& out, std::os
     };
     plots::write_all(*plot_dir, "ridgewatch compare: " + l.path, text.str(), files);
     err << "compare: wrote " << files.size() << " plots and " << (*plot_dir / "index.html").string() << "\n";
+  }
+  if (!undescribed.empty()) {
+    err << "compare: " << l.path << ": the rig does not describe this record (" << undescribed.front()
+        << "); the fitted numbers above are not physical\n";
+    return kExitBadInput;
   }
   return kExitOk;
 }

@@ -52,6 +52,7 @@ int run_diagnose(const std::vector<std::string>& argv, std::ostream& out, std::o
                      {"implausible_because", s.plausibility},
                      {"gates", {{"heldout_gain", s.gain_ok}, {"impacts_improve", s.impacts_ok}, {"bic", s.bic_ok}, {"plausible", s.plausible}}},
                      {"accepted", s.accepted},
+                     {"removed", s.removed},
                      {"parameters", params},
                      {"evidence", s.evidence}});
   }
@@ -64,16 +65,25 @@ int run_diagnose(const std::vector<std::string>& argv, std::ostream& out, std::o
                       {"baseline_excess", r.baseline_excess},
                       {"steps", steps},
                       {"verdict", r.verdict},
+                      {"removed", r.removed},
+                      {"ambiguous", r.ambiguous},
+                      {"ambiguous_evidence", r.ambiguous_evidence},
                       {"final_excess", r.final_excess},
                       {"final_fit_percent", r.final_fit_percent},
                       {"final_parameters", final_params},
                       {"unexplained", {{"present", r.unexplained}, {"where", r.unexplained_where}}},
                       {"sensor_problems", r.sensor_problems}};
 
+  const auto undescribed = diagnosis::description_problems(fitter, r.final_fit, r.final_report);
+  j["describable"] = undescribed.empty();
+  j["not_describable_because"] = undescribed;
   if (const auto hist = args.value("--history")) {
     nlohmann::json line = {{"file", l.path},
                            {"model", r.initial_effects},
                            {"verdict", r.verdict},
+                      {"removed", r.removed},
+                      {"ambiguous", r.ambiguous},
+                      {"ambiguous_evidence", r.ambiguous_evidence},
                            {"baseline_excess", r.baseline_excess},
                            {"final_excess", r.final_excess},
                            {"unexplained", r.unexplained}};
@@ -93,6 +103,10 @@ int run_diagnose(const std::vector<std::string>& argv, std::ostream& out, std::o
       round = s.round;
       text << " round " << round << ":\n";
     }
+    if (s.removed) {
+      text << "  REMOVE " << s.effect << ": " << s.evidence << "\n";
+      continue;
+    }
     text << "  " << (s.accepted ? "ACCEPT " : (s.passed ? "pass   " : "reject ")) << s.effect << ": excess "
          << g(s.excess_before) << " -> " << g(s.excess_after) << " (need gain > " << g(s.required_gain, 2) << "), "
          << g(100 * s.fraction_improved, 3) << " % impacts improve, dBIC " << g(s.delta_bic, 4)
@@ -100,9 +114,11 @@ int run_diagnose(const std::vector<std::string>& argv, std::ostream& out, std::o
     if (s.accepted) text << "      evidence: " << s.evidence << "\n";
   }
   text << "verdict: ";
-  if (r.verdict.empty()) text << "nothing missing above the noise";
+  if (r.verdict.empty()) text << (!r.ambiguous.empty() ? "no single effect (ambiguous, below)" : r.unexplained ? "no catalogue effect passes" : "nothing missing above the noise");
   for (std::size_t i = 0; i < r.verdict.size(); ++i) text << (i ? " then " : "") << r.verdict[i];
   text << "; final held-out excess " << g(r.final_excess) << ", fit " << g(r.final_fit_percent, 4) << " %\n";
+  if (!r.ambiguous.empty()) text << "ambiguous: " << r.ambiguous_evidence << "\n";
+  for (const auto& u : undescribed) text << "NOT DESCRIBED BY THE RIG: " << u << "\n";
   text << "unexplained structured residual: " << (r.unexplained ? r.unexplained_where : "none") << "\n";
   for (const auto& p : r.sensor_problems) text << "sensor: " << p << "\n";
   if (!args.has("--json")) out << text.str();
@@ -130,6 +146,10 @@ int run_diagnose(const std::vector<std::string>& argv, std::ostream& out, std::o
     };
     plots::write_all(*plot_dir, "ridgewatch diagnose: " + l.path, text.str(), files);
     err << "diagnose: wrote " << files.size() << " plots and " << (*plot_dir / "index.html").string() << "\n";
+  }
+  if (!undescribed.empty()) {
+    err << "diagnose: " << l.path << ": the rig does not describe this record (" << undescribed.front() << ")\n";
+    return kExitBadInput;
   }
   return kExitOk;
 }

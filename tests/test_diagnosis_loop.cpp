@@ -65,7 +65,7 @@ TEST_P(DiagnoseLoop, AcceptsExactlyTheHiddenEffects) {
   for (const auto& h : c.hidden) want.push_back(h.name);
   std::sort(want.begin(), want.end());
   std::sort(got.begin(), got.end());
-  EXPECT_EQ(got, want);
+  EXPECT_EQ(got, want) << "ambiguous: " << r.ambiguous_evidence;
   // 0.1: the acceptance's "nothing left to explain"; 3 standard errors of a held-out power ratio over
   // the ~4300 held-out samples of 8 impacts are 0.065, so a complete model lands below it.
   EXPECT_LT(r.final_excess, 0.1) << "baseline " << r.baseline_excess;

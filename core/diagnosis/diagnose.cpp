@@ -131,10 +131,20 @@ std::string evidence(const std::string& effect, const FitResult& fit, const Resi
   return o.str();
 }
 
-double second_mode_start(const ResidualReport& rep, double f0, double zeta) {
-  for (const auto& p : rep.peaks)
-    if (std::abs(p.f_hz - f0) > 3.0 * zeta * f0) return p.f_hz;
-  return 1.1 * f0;
+/// Starting frequencies for a second mode: the residual-spectrum peaks (strongest first, at most 3)
+/// that are off f0's own band (3 ζ f0) and are not mesh lines or f0's harmonics; 1.1 f0 when none.
+/// Several starts because a start on the wrong peak (or on f0's shoulder) ends at a bound of the
+/// damping range (issue 14: the 930 Hz mode fitted to its damping bound in round 1 and rejected).
+std::vector<double> second_mode_starts(const ResidualReport& rep, double f0, double zeta) {
+  std::vector<double> out;
+  for (const auto& p : rep.peaks) {
+    if (std::abs(p.f_hz - f0) <= 3.0 * zeta * f0) continue;
+    if (p.marker.find("fz") != std::string::npos || p.marker == "2f0" || p.marker == "3f0") continue;
+    out.push_back(p.f_hz);
+    if (out.size() == 3) break;
+  }
+  if (out.empty()) out.push_back(1.1 * f0);
+  return out;
 }
 
 /// Starting κ for stiffness_nonlinearity from the measured frequency-vs-amplitude backbone. The
@@ -217,9 +227,17 @@ DiagnoseResult diagnose(const ModelFitter& fitter, const std::vector<std::string
       if (std::find(model.begin(), model.end(), name) != model.end()) continue;
       std::vector<std::string> with = model;
       with.push_back(name);
-      std::vector<std::pair<std::string, double>> starts;
-      if (name == "second_mode") starts.push_back({"second_mode.frequency_hz", second_mode_start(current_rep, f0, zeta)});
-      FitResult f = fitter.fit(with, &current, starts);
+      FitResult f;
+      if (name == "second_mode") {
+        bool first = true;
+        for (double f2 : second_mode_starts(current_rep, f0, zeta)) {
+          FitResult g = fitter.fit(with, &current, {{"second_mode.frequency_hz", f2}});
+          if (first || g.train_chi2 < f.train_chi2) f = std::move(g);
+          first = false;
+        }
+      } else {
+        f = fitter.fit(with, &current);
+      }
       if (name == "stiffness_nonlinearity") {
         // A second, cold start (nuisances re-initialised) from the backbone: the linear model's fit
         // of a Duffing response is a poor place to start (it lowers ζ to mimic the chirp, 0.004 for
@@ -232,9 +250,11 @@ DiagnoseResult diagnose(const ModelFitter& fitter, const std::vector<std::string
         std::vector<std::pair<double, double>> kappa_f;  // (κ, small-amplitude frequency) starts
         // A backbone estimate is used when its small-amplitude frequency is within 5 % of the linear
         // fit's f0 (else the line is dominated by noise); otherwise three starts spanning the range.
+        // The three spanning starts are always tried as well: a backbone thinned by the beating test
+        // (or biased by noise) can give a start outside the basin (measured: κ 0.28 for a truth of
+        // 0.5 at 3 % noise, where the start κ = 0.25 reaches 0.506).
         if (std::isfinite(kappa) && std::abs(f_small / f0 - 1.0) < 0.05) kappa_f.push_back({kappa, f_small});
-        else
-          for (double k : {0.25, 1.0, 3.0}) kappa_f.push_back({k, f0 * std::sqrt(1.0 - zeta * zeta)});
+        for (double k : {0.25, 1.0, 3.0}) kappa_f.push_back({k, f0 * std::sqrt(1.0 - zeta * zeta)});
         for (const auto& [k, fs] : kappa_f) {
           // Inside the fitted range [-0.2, 5] with a margin (a start on a bound has no gradient); c0
           // from the small-amplitude frequency (f_d = f0 sqrt(1 - ζ²), f0 ∝ sqrt(c0)); ζ nominal.
@@ -243,7 +263,9 @@ DiagnoseResult diagnose(const ModelFitter& fitter, const std::vector<std::string
               {"stiffness_nonlinearity.kappa", std::clamp(k, -0.15, 4.5)},
               {"c0_n_per_m", 2.0 * std::log(fs / f_nominal)}};
           for (const auto& e : current.estimates)
-            if (e.name != "c0_n_per_m" && e.name != "zeta") cold.push_back({e.name, e.value});
+            // The pulse length restarts from the rig's too: a linear fit of a Duffing response drives
+            // it to a bound of its range to mimic the chirp (measured: 3x the rig's).
+            if (e.name != "c0_n_per_m" && e.name != "zeta" && e.name != "pulse_duration_s") cold.push_back({e.name, e.value});
           FitResult g = fitter.fit(with, nullptr, cold);
           if (g.train_chi2 < f.train_chi2) f = std::move(g);
         }
@@ -279,6 +301,59 @@ DiagnoseResult diagnose(const ModelFitter& fitter, const std::vector<std::string
       if (tried[i].first.passed &&
           (best < 0 || tried[i].first.excess_after < tried[static_cast<std::size_t>(best)].first.excess_after))
         best = static_cast<int>(i);
+    // Rivals: other passing candidates within one standard error of the best's held-out excess
+    // (sqrt(2/n)(1 + excess), a third of the gain gate) and within 10 of its training BIC: the data
+    // do not prefer one. Contact loss and a softening/hardening cubic are then told apart by the
+    // waveform: an asymmetric (one-sided) nonlinearity puts residual at 2 f0, a symmetric one at 3 f0.
+    if (best >= 0) {
+      const auto& b = tried[static_cast<std::size_t>(best)].first;
+      std::vector<std::size_t> rivals;
+      for (std::size_t i = 0; i < tried.size(); ++i) {
+        const auto& o = tried[i].first;
+        if (static_cast<int>(i) == best || !o.passed) continue;
+        if (o.excess_after - b.excess_after < b.required_gain / 3.0 && std::abs(o.delta_bic - b.delta_bic) < 10.0)
+          rivals.push_back(i);
+      }
+      std::vector<std::size_t> keep;
+      for (std::size_t i : rivals) {
+        const std::string& other = tried[i].first.effect;
+        const bool pair = (b.effect == "contact_loss" && other == "stiffness_nonlinearity") ||
+                          (b.effect == "stiffness_nonlinearity" && other == "contact_loss");
+        if (pair) {
+          const double l2 = current_rep.level_2f0, l3 = current_rep.level_3f0;
+          // Decisive: one harmonic above the white level's 4x (the peak threshold) and twice the other.
+          const bool asym = std::isfinite(l2) && l2 > 4.0 && (!std::isfinite(l3) || l2 > 2.0 * l3);
+          const bool sym = std::isfinite(l3) && l3 > 4.0 && (!std::isfinite(l2) || l3 > 2.0 * l2);
+          if (asym || sym) {
+            const std::string winner = asym ? "contact_loss" : "stiffness_nonlinearity";
+            if (b.effect != winner) best = static_cast<int>(i);
+            tried[static_cast<std::size_t>(best)].first.evidence +=
+                " Waveform: residual level " + format_number(l2, 3) + " at 2 f0, " + format_number(l3, 3) + " at 3 f0 (" +
+                (asym ? "asymmetric: teeth separating" : "symmetric: cubic stiffness") + ").";
+            continue;
+          }
+        }
+        keep.push_back(i);
+      }
+      if (!keep.empty()) {
+        // Ambiguous: name none of them; say which and why.
+        std::ostringstream w;
+        res.ambiguous.push_back(tried[static_cast<std::size_t>(best)].first.effect);
+        w << tried[static_cast<std::size_t>(best)].first.effect << " (excess " << format_number(tried[static_cast<std::size_t>(best)].first.excess_after) << ")";
+        for (std::size_t i : keep) {
+          res.ambiguous.push_back(tried[i].first.effect);
+          w << " vs " << tried[i].first.effect << " (excess " << format_number(tried[i].first.excess_after) << ", dBIC "
+            << format_number(tried[i].first.delta_bic - tried[static_cast<std::size_t>(best)].first.delta_bic, 3) << ")";
+        }
+        w << ": explain the held-out impacts equally well (within one standard error "
+          << format_number(tried[static_cast<std::size_t>(best)].first.required_gain / 3.0, 2) << ")";
+        if (std::find(res.ambiguous.begin(), res.ambiguous.end(), "contact_loss") != res.ambiguous.end())
+          w << "; the residual at 2 f0 (" << format_number(current_rep.level_2f0, 3) << ") and 3 f0 ("
+            << format_number(current_rep.level_3f0, 3) << ") does not decide between a one-sided and a symmetric nonlinearity";
+        res.ambiguous_evidence = w.str();
+        best = -1;
+      }
+    }
     if (best >= 0) tried[static_cast<std::size_t>(best)].first.accepted = true;
     for (const auto& t : tried) res.steps.push_back(t.first);
     if (best < 0) break;
@@ -297,6 +372,40 @@ DiagnoseResult diagnose(const ModelFitter& fitter, const std::vector<std::string
       if (again.train_chi2 < current.train_chi2) current = std::move(again);
       if (!better) break;
     }
+    // Backward elimination: every effect accepted before this round is re-tested by refitting the
+    // model without it; one whose removal would no longer fail the gain gate or the BIC gate (the
+    // model without it is about as good) is dropped (issue 14: a greedy loop never took back an early
+    // pick that a later, right effect made redundant).
+    for (bool dropped = true; dropped && res.verdict.size() > 1;) {
+      dropped = false;
+      for (std::size_t k = 0; k + 1 < res.verdict.size(); ++k) {
+        std::vector<std::string> without;
+        for (const auto& e : model)
+          if (e != res.verdict[k]) without.push_back(e);
+        FitResult g = fitter.fit(without, &current);
+        const double need = 3.0 * std::sqrt(2.0 / std::max(1.0, current.heldout_n)) * (1.0 + std::max(0.0, current.heldout_excess));
+        const bool still_needed = g.heldout_excess - current.heldout_excess > need && current.bic - g.bic < -10.0;
+        if (still_needed) continue;
+        CandidateOutcome o;
+        o.effect = res.verdict[k];
+        o.round = round;
+        o.excess_before = current.heldout_excess;
+        o.excess_after = g.heldout_excess;
+        o.required_gain = need;
+        o.delta_bic = g.bic - current.bic;
+        o.plausible = true;
+        o.evidence = "taken back: without it the held-out excess is " + format_number(g.heldout_excess) + " (with it " +
+                     format_number(current.heldout_excess) + "); the later effects explain what it did";
+        o.removed = true;
+        res.steps.push_back(o);
+        res.removed.push_back(res.verdict[k]);
+        model = without;
+        res.verdict.erase(res.verdict.begin() + static_cast<std::ptrdiff_t>(k));
+        current = std::move(g);
+        dropped = true;
+        break;
+      }
+    }
     current_rep = analyse_residual(fitter, current);
     res.rounds.push_back({model, current.heldout_excess, current.fit_percent, current_rep});
   }
@@ -305,7 +414,9 @@ DiagnoseResult diagnose(const ModelFitter& fitter, const std::vector<std::string
   // Unexplained: the final held-out excess is still above 0.1 (the acceptance target, ~3 standard
   // errors of the excess for a few thousand held-out samples) and above its own 3-SE noise.
   const double se3 = 3.0 * std::sqrt(2.0 / std::max(1.0, current.heldout_n));
-  res.unexplained = res.final_excess > std::max(0.1, se3);
+  // "Nothing unexplained" needs a white residual too (issue 14): an excess inside the target with
+  // a Ljung-Box Q far above its limit (233 vs 29.6 measured on a friction fit) still hides structure.
+  res.unexplained = res.final_excess > std::max(0.1, se3) || !current_rep.white;
   if (res.unexplained) {
     std::ostringstream w;
     w << "held-out excess " << format_number(res.final_excess) << " remains";
@@ -327,6 +438,35 @@ DiagnoseResult diagnose(const ModelFitter& fitter, const std::vector<std::string
   res.final_fit = std::move(current);
   res.final_report = std::move(current_rep);
   return res;
+}
+
+std::vector<std::string> description_problems(const ModelFitter& fitter, const FitResult& fit, const ResidualReport& rep) {
+  std::vector<std::string> out;
+  const auto& seg = fitter.segmentation();
+  for (const auto& e : fit.estimates) {
+    if (e.name == "c0_n_per_m" && e.at_bound)
+      out.push_back("fitted c0 " + format_number(e.value, 4) + " N/m is at the edge of the fit range (±50 % of the rig's " +
+                    format_number(fitter.rig().mean_mesh_stiffness_n_per_m, 4) + "): f0 " + format_number(rep.f0_hz, 4) +
+                    " Hz is not the rig's mesh mode");
+    if (e.name == "zeta" && e.at_bound)
+      out.push_back("fitted damping ratio " + format_number(e.value) + " is at the edge of the fit range [1e-4, 0.5]");
+  }
+  const ParameterEstimate* rate = find_estimate(fit, "damping_drift.rate_per_s");
+  if (rate != nullptr) {
+    const double t_end = static_cast<double>(seg.windows.back().end) / seg.sample_rate_hz;
+    const double z_end = find_estimate(fit, "zeta")->value + rate->value * t_end;
+    if (z_end < 0.0) out.push_back("the fitted damping drift makes the damping ratio negative (" + format_number(z_end) + " at " + format_number(t_end, 3) + " s)");
+  }
+  // Fit % = 100 (1 - |r| / |y - ȳ|): below 50 % the model misses more than half the signal amplitude;
+  // every catalogue effect at its sweep size leaves > 90 % with the linear model.
+  if (fit.fit_percent < 50.0)
+    out.push_back("the model explains only " + format_number(fit.fit_percent, 3) + " % of the held-out signal (fit < 50 %)");
+  std::size_t held = 0;
+  for (std::size_t w = 0; w < seg.windows.size(); ++w) held += fitter.is_heldout(w) ? 1 : 0;
+  if (held > 0 && rep.far_windows == held)
+    out.push_back("every held-out response starts far from f0 (first cycles > 25 % off " + format_number(rep.f0_hz, 4) +
+                  " Hz): not the rig's mesh mode");
+  return out;
 }
 
 std::string format_number(double value, int digits) {

@@ -34,6 +34,7 @@ struct CandidateOutcome {
   bool gain_ok = false, impacts_ok = false, bic_ok = false;
   bool passed = false;       ///< all four gates
   bool accepted = false;     ///< chosen in its round
+  bool removed = false;      ///< a backward-elimination step: an earlier pick taken back
   std::vector<ParameterEstimate> parameters;  ///< the effect's own fitted parameters
   std::string evidence;      ///< in words
 };
@@ -49,7 +50,12 @@ struct DiagnoseResult {
   std::vector<std::string> initial_effects;
   double baseline_excess = 0.0;
   std::vector<CandidateOutcome> steps;   ///< every candidate tried, in order
-  std::vector<std::string> verdict;      ///< accepted effects in order
+  std::vector<std::string> verdict;      ///< accepted effects in order (taken-back ones removed)
+  std::vector<std::string> removed;      ///< effects accepted and later taken back
+  /// Candidates that explain the data about as well as an accepted one (or as each other when none
+  /// could be told apart): the verdict names none of them alone. Empty when the choice was clear.
+  std::vector<std::string> ambiguous;
+  std::string ambiguous_evidence;        ///< why they could not be told apart (words)
   double final_excess = 0.0;
   double final_fit_percent = 0.0;
   bool unexplained = false;
@@ -73,6 +79,12 @@ DiagnoseResult diagnose(const ModelFitter& fitter, const std::vector<std::string
 
 /// Sentences about sensor faults found in the segmentation (spikes, dropouts); empty if none.
 std::vector<std::string> sensor_problems(const Segmentation& seg, double duration_s);
+
+/// Reasons why the rig cannot describe the record (empty when it can): c0 or ζ at the bound of the
+/// fit range, a damping ratio that the fitted drift makes negative, less than half of the held-out
+/// signal explained (fit < 50 %), or every held-out response beating / far off f0. `compare` and
+/// `diagnose` flag these and exit 3 instead of printing numbers that mean nothing (issue 14).
+std::vector<std::string> description_problems(const ModelFitter& fitter, const FitResult& fit, const ResidualReport& rep);
 
 /// A number with `digits` significant digits (%.*g) for evidence texts and reports.
 std::string format_number(double value, int digits = 3);

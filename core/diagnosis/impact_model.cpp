@@ -43,7 +43,14 @@ const std::vector<CandidateSpec>& candidate_table() {
   // Start values: a fraction of a typical size so that the optimiser sees a non-zero derivative
   // (a log parameter started at its lower bound would have none). Bounds inside the catalogue's.
   static const std::vector<CandidateSpec> table = {
-      {"mesh_stiffness_variation", {{"scale", Transform::kLog, 1e-3, 5.0, 0.5}}, {}, true},
+      // static_coupling: how much of the variation multiplies the static deflection (the k f_z lines
+      // under load); 0 and 1 are both physical (relieved / unmodified teeth), so its bounds are
+      // attainable. Without it a record whose only evidence is the sidebands f0 ± k f_z is missed:
+      // the fit must then predict load lines that are not there (issue 14).
+      {"mesh_stiffness_variation",
+       {{"scale", Transform::kLog, 1e-3, 5.0, 0.5}, {"static_coupling", Transform::kBounded, 0.0, 1.0, 0.5, true}},
+       {},
+       true},
       {"transmission_error",
        {{"e1_m", Transform::kLog, 1e-10, 1e-4, 1e-7}, {"e2_m", Transform::kLog, 1e-10, 1e-4, 5e-8}},
        {{"e3_m", 0.0}},
@@ -86,7 +93,7 @@ WindowSimulator::WindowSimulator(const model::RigParameters& rig, const PhysicsV
   crit_ = 2.0 * std::sqrt(physics.c0_n_per_m * m_red_);
   static_force_ = rig_.static_mesh_force_n();
   q_s_ = static_force_ / physics.c0_n_per_m;  // equilibrium x = 0 for the fitted c0
-  pulse_s_ = rig_.impact_duration_s;
+  pulse_s_ = physics.pulse_s > 0.0 ? physics.pulse_s : rig_.impact_duration_s;
   sens_ = rig_.sensor_sensitivity;
   double f_max = std::sqrt(physics.c0_n_per_m / m_red_) / kTwoPi;
   for (const auto& [name, values] : physics.effects) {
@@ -117,13 +124,14 @@ WindowSimulator::WindowSimulator(const model::RigParameters& rig, const PhysicsV
   // Phasors of the mesh-periodic terms over one mesh cycle (orders 1..4; 32 points resolve order 4
   // of the rig's 3-term Eq. B1 and of the catalogue's 3-harmonic transmission error exactly).
   constexpr int kPoints = 32;
-  for (int k = 0; k < 4; ++k) e_ph_[k] = de_ph_[k] = dc_ph_[k] = 0.0;
+  for (int k = 0; k < 4; ++k) e_ph_[k] = de_ph_[k] = dc_ph_[k] = dcs_ph_[k] = 0.0;
   for (int j = 0; j < kPoints; ++j) {
     const double th = kTwoPi * j / kPoints;
-    double e = 0.0, de = 0.0, dc = 0.0;
+    double e = 0.0, de = 0.0, dc = 0.0, dcs = 0.0;
     for (const auto& eff : effects_) {
       eff->add_transmission_error(th, e, de);
       dc += eff->stiffness_variation_n_per_m(th);
+      dcs += eff->static_stiffness_variation_n_per_m(th);
     }
     if (e != 0.0 || de != 0.0 || dc != 0.0) mesh_forcing_ = true;
     for (int k = 0; k < 4; ++k) {
@@ -131,6 +139,7 @@ WindowSimulator::WindowSimulator(const model::RigParameters& rig, const PhysicsV
       e_ph_[k] += e * w;
       de_ph_[k] += de * w;
       dc_ph_[k] += dc * w;
+      dcs_ph_[k] += dcs * w;
     }
   }
   // The phasors stand in for the effects' hooks inside the integration (one sincos per evaluation
@@ -139,47 +148,51 @@ WindowSimulator::WindowSimulator(const model::RigParameters& rig, const PhysicsV
   // Fourier series of order <= 4; a term of higher order or a mean offset keeps the direct calls).
   if (mesh_forcing_) {
     phasors_exact_ = true;
-    double e_size = 0.0, dc_size = 0.0, de_size = 0.0;
+    double e_size = 0.0, dc_size = 0.0, de_size = 0.0, dcs_size = 0.0;
     for (int k = 0; k < 4; ++k) {
       e_size += std::abs(e_ph_[k]);
       de_size += std::abs(de_ph_[k]);
       dc_size += std::abs(dc_ph_[k]);
+      dcs_size += std::abs(dcs_ph_[k]);
     }
     for (double th : {0.1234, 1.7, 2.9183, 4.4321, 5.99}) {
-      double e = 0.0, de = 0.0, dc = 0.0;
+      double e = 0.0, de = 0.0, dc = 0.0, dcs = 0.0;
       for (const auto& eff : effects_) {
         eff->add_transmission_error(th, e, de);
         dc += eff->stiffness_variation_n_per_m(th);
+        dcs += eff->static_stiffness_variation_n_per_m(th);
       }
-      double pe, pde, pdc;
-      mesh_terms(th, pdc, pe, pde);
+      double pe, pde, pdc, pdcs;
+      mesh_terms(th, pdc, pe, pde, pdcs);
       if (std::abs(pe - e) > 1e-9 * e_size || std::abs(pde - de) > 1e-9 * de_size ||
-          std::abs(pdc - dc) > 1e-9 * dc_size)
+          std::abs(pdc - dc) > 1e-9 * dc_size || std::abs(pdcs - dcs) > 1e-9 * dcs_size)
         phasors_exact_ = false;
     }
   }
 }
 
-void WindowSimulator::mesh_terms(double th, double& dc, double& e, double& de) const {
-  dc = e = de = 0.0;
+void WindowSimulator::mesh_terms(double th, double& dc, double& e, double& de, double& dcs) const {
+  dc = e = de = dcs = 0.0;
   if (!mesh_forcing_) return;
   if (!phasors_exact_) {
     for (const auto& eff : effects_) {
       eff->add_transmission_error(th, e, de);
       dc += eff->stiffness_variation_n_per_m(th);
+      dcs += eff->static_stiffness_variation_n_per_m(th);
     }
     return;
   }
-  phasor_sums(std::cos(th), std::sin(th), dc, e, de);
+  phasor_sums(std::cos(th), std::sin(th), dc, e, de, dcs);
 }
 
-void WindowSimulator::phasor_sums(double c1, double s1, double& dc, double& e, double& de) const {
+void WindowSimulator::phasor_sums(double c1, double s1, double& dc, double& e, double& de, double& dcs) const {
   // Re(a e^{ikθ}) = Re a cos kθ - Im a sin kθ, with cos kθ, sin kθ by the angle-addition recurrence
   // from c1 = cos θ, s1 = sin θ (real arithmetic: std::complex products carry NaN/inf recovery branches).
-  dc = e = de = 0.0;
+  dc = e = de = dcs = 0.0;
   double ck = c1, sk = s1;
   for (int k = 0; k < 4; ++k) {
     dc += dc_ph_[k].real() * ck - dc_ph_[k].imag() * sk;
+    dcs += dcs_ph_[k].real() * ck - dcs_ph_[k].imag() * sk;
     e += e_ph_[k].real() * ck - e_ph_[k].imag() * sk;
     de += de_ph_[k].real() * ck - de_ph_[k].imag() * sk;
     const double cn = ck * c1 - sk * s1;
@@ -213,11 +226,13 @@ WindowSimulator::Steady WindowSimulator::steady_state(double mesh_hz) const {
   const double d = physics_.zeta * crit_;
   const double c0 = physics_.c0_n_per_m;
   // Complex Fourier coefficients for orders -4..4 (index n + 4) from the real-amplitude phasors.
-  cd C[9], E[9], G[9];
-  for (int n = 0; n < 9; ++n) C[n] = E[n] = G[n] = 0.0;
+  cd C[9], E[9], G[9], S[9];
+  for (int n = 0; n < 9; ++n) C[n] = E[n] = G[n] = S[n] = 0.0;
   for (int k = 1; k <= 4; ++k) {
     C[4 + k] = 0.5 * dc_ph_[k - 1];
     C[4 - k] = std::conj(C[4 + k]);
+    S[4 + k] = 0.5 * dcs_ph_[k - 1];
+    S[4 - k] = std::conj(S[4 + k]);
     E[4 + k] = 0.5 * e_ph_[k - 1];
     E[4 - k] = std::conj(E[4 + k]);
     G[4 + k] = 0.5 * de_ph_[k - 1];
@@ -230,7 +245,7 @@ WindowSimulator::Steady WindowSimulator::steady_state(double mesh_hz) const {
     const int r = n + K;
     const double nw = n * omega;
     A(r, r) = cd(c0 - m_red_ * nw * nw, d * nw);
-    cd rhs = -(c0 * coef(E, n) + d * omega * coef(G, n) + q_s_ * coef(C, n));
+    cd rhs = -(c0 * coef(E, n) + d * omega * coef(G, n) + q_s_ * coef(S, n));
     for (int j = -4; j <= 4; ++j) {
       if (j == 0) continue;
       const cd cj = coef(C, j);
@@ -279,7 +294,7 @@ void WindowSimulator::simulate(std::uint64_t first, std::size_t n, const Impact&
   // stages per step, two of them on shared points). Off-grid times (pulse edges, located events) and
   // non-phasor effects use mesh_terms directly.
   const double h = 1.0 / (fs_ * substeps_);
-  std::vector<std::array<double, 3>> grid;
+  std::vector<std::array<double, 4>> grid;
   if (mesh_forcing_ && phasors_exact_ && n > 1) {
     grid.resize(2 * static_cast<std::size_t>(substeps_) * (n - 1) + 1);
     const double th0 = physics_.mesh_phase_rad + omega * (t_begin - imp.onset_s);
@@ -287,16 +302,16 @@ void WindowSimulator::simulate(std::uint64_t first, std::size_t n, const Impact&
     const double cr = std::cos(dth), sr = std::sin(dth);
     double c1 = std::cos(th0), s1 = std::sin(th0);
     for (auto& g : grid) {
-      double dc = 0.0, e = 0.0, de = 0.0;
-      phasor_sums(c1, s1, dc, e, de);
-      g = {dc, e, de};
+      double dc = 0.0, e = 0.0, de = 0.0, dcs = 0.0;
+      phasor_sums(c1, s1, dc, e, de, dcs);
+      g = {dc, e, de, dcs};
       const double cn = c1 * cr - s1 * sr;
       s1 = s1 * cr + c1 * sr;
       c1 = cn;
     }
   }
   const double inv_half_h = 2.0 / h;
-  auto terms_at = [&](double t, double th, double& dc, double& e, double& de) {
+  auto terms_at = [&](double t, double th, double& dc, double& e, double& de, double& dcs) {
     if (!grid.empty()) {
       const double u = (t - t_begin) * inv_half_h;
       const double j = std::round(u);
@@ -305,10 +320,11 @@ void WindowSimulator::simulate(std::uint64_t first, std::size_t n, const Impact&
         dc = g[0];
         e = g[1];
         de = g[2];
+        dcs = g[3];
         return;
       }
     }
-    mesh_terms(th, dc, e, de);
+    mesh_terms(th, dc, e, de, dcs);
   };
   auto steady_at = [&](double t, double& x, double& v) {
     x = v = 0.0;
@@ -335,16 +351,16 @@ void WindowSimulator::simulate(std::uint64_t first, std::size_t n, const Impact&
     m.mesh_angle_rad = physics_.mesh_phase_rad + omega * (t - imp.onset_s);
     m.x_m = s[0];
     m.v_m_per_s = s[1];
-    double dc, e, de;
-    terms_at(t, m.mesh_angle_rad, dc, e, de);
+    double dc, e, de, dcs;
+    terms_at(t, m.mesh_angle_rad, dc, e, de, dcs);
     m.deflection_m = q_s_ + s[0] + e;
     return m;
   };
   // Net force on the mesh coordinate, Eq. A1 (same terms as model::simulate's Dynamics).
   auto force = [&](double t, const Vec& s, bool include_stick) {
     const double th = physics_.mesh_phase_rad + omega * (t - imp.onset_s);
-    double dc, e, de, factor = 1.0;
-    terms_at(t, th, dc, e, de);
+    double dc, e, de, dcs, factor = 1.0;
+    terms_at(t, th, dc, e, de, dcs);
     for (std::size_t i = 0; i < effects_.size(); ++i) factor *= effects_[i]->mesh_force_factor(regimes[i]);
     model::MeshState m;
     m.t_s = t;
@@ -353,8 +369,9 @@ void WindowSimulator::simulate(std::uint64_t first, std::size_t n, const Impact&
     m.v_m_per_s = s[1];
     m.deflection_m = q_s_ + s[0] + e;
     const double rate = s[1] + de * omega;
-    double f = static_force_ + pulse(t) -
-               factor * ((c0 + dc) * m.deflection_m + damping_ratio_at(t) * crit_ * rate);
+    // The static deflection sees only the static part of the variation (as model::simulate).
+    const double elastic = dcs == dc ? (c0 + dc) * m.deflection_m : (c0 + dc) * (s[0] + e) + (c0 + dcs) * q_s_;
+    double f = static_force_ + pulse(t) - factor * (elastic + damping_ratio_at(t) * crit_ * rate);
     for (std::size_t i = 0; i < effects_.size(); ++i) {
       if (!include_stick && effects_[i]->stick_force_limit_n() > 0.0) continue;
       f -= effects_[i]->resisting_force_n(m, regimes[i]);

@@ -68,6 +68,10 @@ struct PhysicsValues {
   double c0_n_per_m = 0.0;
   double zeta = 0.0;
   double mesh_phase_rad = 0.0;  ///< φ_z (used only by mesh-periodic effects)
+  /// Length of the half-sine impact pulse (s); 0: the rig's impact_duration_s. Fitted: a real impact
+  /// is no exact half-sine, and a short pulse's shape acts on the response through its length and
+  /// second moment (a Hann pulse of length τ equals a half-sine of 0.83 τ to second order in ωτ).
+  double pulse_s = 0.0;
   std::vector<std::pair<std::string, model::EffectValues>> effects;  ///< complete value sets
 };
 
@@ -113,9 +117,10 @@ class WindowSimulator {
   };
   Steady steady_state(double mesh_hz) const;
   /// Δc(θ), e(θ), de/dθ summed over the effects (phasors when exact, else the effects' hooks).
-  void mesh_terms(double th, double& dc, double& e, double& de) const;
+  /// `dcs`: the static part of Δc (multiplies q_s; equal to dc unless an effect relieves it).
+  void mesh_terms(double th, double& dc, double& e, double& de, double& dcs) const;
   /// The phasor sums of mesh_terms for cos θ = c1, sin θ = s1 (phasors exact).
-  void phasor_sums(double c1, double s1, double& dc, double& e, double& de) const;
+  void phasor_sums(double c1, double s1, double& dc, double& e, double& de, double& dcs) const;
 
   model::RigParameters rig_;
   PhysicsValues physics_;
@@ -129,7 +134,7 @@ class WindowSimulator {
   double aux_w2_ = 0.0, aux_2zw_ = 0.0, aux_part_ = 0.0, aux_w_ = 0.0, aux_zeta_ = 0.0;
   bool mesh_forcing_ = false;
   bool phasors_exact_ = false;
-  std::complex<double> e_ph_[4], de_ph_[4], dc_ph_[4];  // phasors of e(θ), de/dθ, Δc(θ)
+  std::complex<double> e_ph_[4], de_ph_[4], dc_ph_[4], dcs_ph_[4];  // phasors of e(θ), de/dθ, Δc(θ), static Δc
 };
 
 }  // namespace ridgewatch::diagnosis

@@ -30,6 +30,14 @@ std::vector<GlobalParameter> ModelFitter::layout(const std::vector<std::string>&
     mesh = mesh || c->mesh_periodic;
   }
   if (mesh) g.push_back({"mesh_phase_rad", "", "", Transform::kAngle, 0.0, 0.0});
+  // The impact pulse length (last, so that the effects' parameters keep their places): between 0.5
+  // and 2 times the rig's (wider lets a wrong model use it to mimic other physics). Measured on records of an independent generator with a Hann pulse: with
+  // the length fixed, the held-out excess of a control stays at 0.04-0.12 (the pulse shape alone);
+  // fitted, at the noise (issue 14).
+  // Not with a mesh-periodic effect: there the steady forced response is up to 1000x the noise and
+  // the extra global left a held-out excess of 1.5-5 where the fixed pulse leaves 0.1 (measured on
+  // both generators; not understood yet, issue 14).
+  if (!mesh) g.push_back({"pulse_duration_s", "", "", Transform::kLog, 0.5 * rig_.impact_duration_s, 2.0 * rig_.impact_duration_s});
   return g;
 }
 
@@ -41,6 +49,7 @@ PhysicsValues ModelFitter::physics(const std::vector<GlobalParameter>& layout, c
     if (g.name == "c0_n_per_m") p.c0_n_per_m = rig_.mean_mesh_stiffness_n_per_m * std::exp(v);
     else if (g.name == "zeta") p.zeta = v;
     else if (g.name == "mesh_phase_rad") p.mesh_phase_rad = v;
+    else if (g.name == "pulse_duration_s") p.pulse_s = v;
     else {
       auto it = std::find_if(p.effects.begin(), p.effects.end(), [&](const auto& e) { return e.first == g.effect; });
       if (it == p.effects.end()) {
@@ -413,6 +422,7 @@ FitResult ModelFitter::fit(const std::vector<std::string>& effects, const FitRes
     if (L[i].name == "zeta") start = rig_.damping_ratio > 0.0 ? rig_.damping_ratio : 0.02;
     else if (L[i].name == "c0_n_per_m") start = 0.0;
     else if (L[i].name == "mesh_phase_rad") start = 0.0;
+    else if (L[i].name == "pulse_duration_s") start = rig_.impact_duration_s;
     else {
       const CandidateSpec* c = find_candidate(L[i].effect);
       for (const auto& f : c->free)

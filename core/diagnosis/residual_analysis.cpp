@@ -108,7 +108,8 @@ ResidualReport analyse_residual(const ModelFitter& fitter, const FitResult& fit)
   // Mean periodogram of the held-out residual windows, |Σ r_n e^{-iωn}|² / n in σ² units (1 = white
   // noise), on a grid of fs / (2 max_len) up to min(3 f0, 0.45 fs) by direct summation.
   const double df = fs / (2.0 * static_cast<double>(std::max<std::size_t>(max_len, 16)));
-  const double f_top = std::min(3.0 * rep.f0_hz, 0.45 * fs);
+  // Up to 3.3 f0: the 2 f0 (asymmetric waveform: contact loss) and 3 f0 (symmetric cubic) lines.
+  const double f_top = std::min(3.3 * rep.f0_hz, 0.45 * fs);
   for (double f = df; f < f_top; f += df) rep.spectrum_f_hz.push_back(f);
   rep.spectrum_level.assign(rep.spectrum_f_hz.size(), 0.0);
   double windows = 0.0;
@@ -134,6 +135,17 @@ ResidualReport analyse_residual(const ModelFitter& fitter, const FitResult& fit)
     if (rep.f0_hz - k * rep.fz_hz > 0.0) rep.markers.push_back({"f0-" + std::to_string(k) + "fz", rep.f0_hz - k * rep.fz_hz});
   }
   rep.markers.push_back({"f0", rep.f0_hz});
+  rep.markers.push_back({"2f0", 2.0 * rep.f0_hz});
+  if (3.0 * rep.f0_hz < f_top) rep.markers.push_back({"3f0", 3.0 * rep.f0_hz});
+  // Harmonic levels: the largest spectrum value within the resolution (2 bins) of 2 f0 and 3 f0.
+  auto level_near = [&](double f) {
+    double best = kNaN;
+    for (std::size_t k = 0; k < rep.spectrum_f_hz.size(); ++k)
+      if (std::abs(rep.spectrum_f_hz[k] - f) <= 2.0 * df) best = std::isfinite(best) ? std::max(best, rep.spectrum_level[k]) : rep.spectrum_level[k];
+    return best;
+  };
+  rep.level_2f0 = level_near(2.0 * rep.f0_hz);
+  rep.level_3f0 = level_near(3.0 * rep.f0_hz);
   // Lines: local maxima above 4 (the mean of K >= 6 independent χ²₂/2 periodogram values exceeds 4 with
   // p < 1e-6 per bin); the marker if within 2 bins (the window's resolution).
   for (std::size_t k = 1; k + 1 < rep.spectrum_level.size(); ++k) {
@@ -189,6 +201,25 @@ ResidualReport analyse_residual(const ModelFitter& fitter, const FitResult& fit)
     std::vector<double> ym(y.begin() + static_cast<std::ptrdiff_t>(win.begin + skip), y.begin() + static_cast<std::ptrdiff_t>(win.begin + skip + n));
     const auto cm = cycles(ym.data(), n, fs, 5.0 * sd);
     const auto cmod = cycles(fit.model[w].data() + skip, n, fs, 5.0 * sd);
+    // A window whose measured envelope rises again (by 10 % and 2 σ: beyond the noise jitter of a
+    // cycle maximum above 5 σ) or whose cycle frequency strays 25 % from f0 beats (two close modes,
+    // a parametric modulation): its zero-crossing periods and decrements are beating artefacts, not
+    // a backbone (issue 14: a 1378 Hz "backbone" point from a second mode at 930 Hz). Left out.
+    bool beats = false;
+    for (std::size_t k = 0; k + 1 < cm.size(); ++k)
+      if (cm[k + 1].a > 1.1 * cm[k].a && cm[k + 1].a - cm[k].a > 2.0 * sd) beats = true;
+    bool far = false;
+    for (std::size_t k = 0; k < cm.size(); ++k)
+      if (rep.f0_hz > 0.0 && std::abs(cm[k].f / rep.f0_hz - 1.0) > 0.25) {
+        beats = true;
+        // In the first three cycles the impact response dominates any steady mesh line.
+        if (k < 3) far = true;
+      }
+    if (far) ++rep.far_windows;
+    if (beats) {
+      ++rep.beating_windows;
+      continue;
+    }
     meas.insert(meas.end(), cm.begin(), cm.end());
     mod.insert(mod.end(), cmod.begin(), cmod.end());
   }

@@ -36,6 +36,12 @@ struct ResidualReport {
   double ljung_box_limit = 0.0;           ///< χ²(10) 99.9 % point
   bool white = true;
   Backbone measured, model;
+  std::size_t beating_windows = 0;        ///< held-out windows left out of the backbones (beating)
+  std::size_t far_windows = 0;            ///< of those, windows whose first cycles are > 25 % off f0
+  /// Residual spectrum level (σ² units, 1 = white) at 2 f0 and 3 f0 (NaN beyond the spectrum): an
+  /// asymmetric nonlinearity (contact loss) puts its first harmonic at 2 f0, a symmetric one
+  /// (cubic stiffness) at 3 f0.
+  double level_2f0 = 0.0, level_3f0 = 0.0;
   std::size_t spikes = 0, dropouts = 0;
 };
 

@@ -66,6 +66,13 @@ class Effect {
   virtual double damping_ratio_offset(double /*t_s*/) const { return 0.0; }
   /// Added to the mean mesh stiffness c0: a function of the mesh angle (Eq. B1), N/m.
   virtual double stiffness_variation_n_per_m(double /*mesh_angle_rad*/) const { return 0.0; }
+  /// The part of that variation that multiplies the static deflection q_s (N/m): the source of the
+  /// load-driven lines at k f_z. Equal to the whole variation unless the effect says otherwise (a
+  /// profile relieved for the nominal load cancels the static part; mesh_stiffness_variation's
+  /// `static_coupling`).
+  virtual double static_stiffness_variation_n_per_m(double mesh_angle_rad) const {
+    return stiffness_variation_n_per_m(mesh_angle_rad);
+  }
   /// Adds the transmission error e (m) and its derivative de/dθ_z (m/rad) at a mesh angle (Eq. A1).
   virtual void add_transmission_error(double /*mesh_angle_rad*/, double& /*e_m*/,
                                       double& /*de_dangle_m_per_rad*/) const {}

@@ -128,10 +128,11 @@ class Dynamics {
   double mesh_coordinate_force_n(double t_s, const State& s, bool include_stick_effects) const {
     const double theta_dot = 2.0 * std::numbers::pi * shaft_speed_hz(t_s);
     const double mesh_angle = teeth_ * s[kTheta];
-    double dc = 0.0, e = 0.0, de_dangle = 0.0;
+    double dc = 0.0, dc_static = 0.0, e = 0.0, de_dangle = 0.0;
     double factor = 1.0;
     for (std::size_t i = 0; i < effects_.size(); ++i) {
       dc += effects_[i]->stiffness_variation_n_per_m(mesh_angle);
+      dc_static += effects_[i]->static_stiffness_variation_n_per_m(mesh_angle);
       effects_[i]->add_transmission_error(mesh_angle, e, de_dangle);
       factor *= effects_[i]->mesh_force_factor(regimes_[i]);
     }
@@ -143,9 +144,11 @@ class Dynamics {
     m.deflection_m = static_deflection_m_ + s[kX] + e;  // δ = q_s + x + e
     const double deflection_rate = s[kV] + de_dangle * teeth_ * theta_dot;
     const double damping = damping_ratio(t_s) * critical_n_s_per_m_;
-    // Eq. A1: c_z(t) (q + e) + d_z (q̇ + ė), switched off (in part) while the teeth are separated.
-    double force = static_force_n_ + impact_force_n(t_s) -
-                   factor * ((c0_n_per_m_ + dc) * m.deflection_m + damping * deflection_rate);
+    // Eq. A1: c_z(t) (q + e) + d_z (q̇ + ė), switched off (in part) while the teeth are separated;
+    // the static deflection sees only the variation's static part (equal to dc unless relieved).
+    const double elastic = dc_static == dc ? (c0_n_per_m_ + dc) * m.deflection_m
+                                           : (c0_n_per_m_ + dc) * (s[kX] + e) + (c0_n_per_m_ + dc_static) * static_deflection_m_;
+    double force = static_force_n_ + impact_force_n(t_s) - factor * (elastic + damping * deflection_rate);
     for (std::size_t i = 0; i < effects_.size(); ++i) {
       if (!include_stick_effects && effects_[i]->stick_force_limit_n() > 0.0) continue;
       force -= effects_[i]->resisting_force_n(m, regimes_[i]);

@@ -9,7 +9,8 @@ namespace {
 
 class MeshStiffnessVariation final : public Effect {
  public:
-  MeshStiffnessVariation(double scale, const RigParameters& rig) : harmonics_(rig.stiffness_harmonics) {
+  MeshStiffnessVariation(double scale, double static_coupling, const RigParameters& rig)
+      : harmonics_(rig.stiffness_harmonics), static_coupling_(static_coupling) {
     double sum = 0.0;
     for (auto& h : harmonics_) {
       h.amplitude_n_per_m *= scale;
@@ -27,13 +28,17 @@ class MeshStiffnessVariation final : public Effect {
             std::cos(static_cast<double>(k + 1) * mesh_angle_rad + harmonics_[k].phase_rad);
     return dc;
   }
+  double static_stiffness_variation_n_per_m(double mesh_angle_rad) const override {
+    return static_coupling_ == 0.0 ? 0.0 : static_coupling_ * stiffness_variation_n_per_m(mesh_angle_rad);
+  }
 
  private:
   std::vector<StiffnessHarmonic> harmonics_;
+  double static_coupling_;
 };
 
 std::unique_ptr<Effect> create(const EffectValues& v, const RigParameters& rig) {
-  return std::make_unique<MeshStiffnessVariation>(v.at("scale"), rig);
+  return std::make_unique<MeshStiffnessVariation>(v.at("scale"), v.at("static_coupling"), rig);
 }
 
 }  // namespace
@@ -47,10 +52,15 @@ EffectDescriptor mesh_stiffness_variation_descriptor() {
       "sum_k c_k cos(k theta_z + gamma_k), with the rig's c_k, gamma_k scaled by `scale`). This makes "
       "Eq. A2 a parametrically excited oscillator: the free response after an impact is modulated at "
       "the mesh frequency, and under load the varying stiffness times the static deflection forces the "
-      "gears at k f_z.",
+      "gears at k f_z. `static_coupling` is the fraction of the static deflection the variation acts on: "
+      "1 for unmodified teeth; a profile relieved for the nominal load cancels the static transmission "
+      "error (0): then the only evidence is the modulation of each free decay (sidebands f0 +- k f_z).",
       "residual lines at f0 +- k f_z; ridge frequency modulated at f_z; lines at k f_z under load; "
       "no bias of the damping estimate",
-      {{"scale", "1", 0.0, 5.0, 1.0, 0.0, "factor on the rig's Fourier terms c_k (1 = rig values)"}},
+      {{"scale", "1", 0.0, 5.0, 1.0, 0.0, "factor on the rig's Fourier terms c_k (1 = rig values)"},
+       {"static_coupling", "1", 0.0, 1.0, 1.0, std::nullopt,
+        "fraction of the static deflection q_s the variation multiplies (1 = lines at k f_z under load, "
+        "0 = load-compensated profile, sidebands only)"}},
       create,
   };
 }
