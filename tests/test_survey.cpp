@@ -11,17 +11,24 @@
 #include <fstream>
 #include <sstream>
 
+#include <unistd.h>
+
 #include "bench/survey_cases.hpp"
 #include "cli/args.hpp"
 #include "cli/commands.hpp"
 #include "cli/config_yaml.hpp"
+
 #include "core/survey/kurtogram.hpp"
 #include "drivers/replay_file.hpp"
 
 namespace {
 
+// One directory per test and process: ctest runs the tests of this file in parallel, and cases that
+// shared one directory overwrote each other's record between the survey and the analyze step.
 std::string temp_dir(const std::string& name) {
-  const auto d = std::filesystem::temp_directory_path() / ("ridgewatch-test-survey-" + name);
+  const std::string test = ::testing::UnitTest::GetInstance()->current_test_info()->name();
+  const auto d = std::filesystem::temp_directory_path() /
+                 ("ridgewatch-test-survey-" + name + "-" + test + "-" + std::to_string(::getpid()));
   std::filesystem::create_directories(d);
   return d.string();
 }
@@ -137,8 +144,10 @@ TEST(SurveyRealData, HammerHitRepeatedFiveTimes) {
   const auto o = survey_cases::survey_then_analyze(dir + "/hammer5.wav", dir + "/hammer5.yaml", onsets, zetas, 0.2);
   ASSERT_TRUE(o.proposal) << o.survey_text;
   const double f = o.f_expected_hz;
-  // Within 3 % of one of the known strong modes (the data's README gives them rounded).
-  const bool near_mode = std::fabs(f / 900 - 1) < 0.03 || std::fabs(f / 2640 - 1) < 0.03 || std::fabs(f / 5970 - 1) < 0.03;
+  // Within 3 % of one of the structure's known modes (the data's README gives them rounded: 900,
+  // 2640 and 5970 Hz the strongest, 4128 Hz a further one; the survey may ring-select any of them).
+  bool near_mode = false;
+  for (double known : {900.0, 2640.0, 4128.0, 5970.0}) near_mode = near_mode || std::fabs(f / known - 1) < 0.03;
   EXPECT_TRUE(near_mode) << "f_expected_hz " << f;
   EXPECT_EQ(o.found, 5u) << o.analyze_err;
   EXPECT_EQ(o.false_events, 0u);
