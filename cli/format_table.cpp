@@ -85,13 +85,15 @@ void write_table(std::ostream& o, const json& rows, const std::string& indent) {
     }
   }
   // Columns of long text (evidence, notes) would make every row as wide as the longest sentence: they
-  // leave the table and follow it as "[row] column: text" lines.
+  // leave the table and follow it as "[row] column: text" lines. Names (the source file, a stream) stay
+  // columns whatever their length: a long path is an identifier, not prose.
   constexpr std::size_t kLongText = 40;
+  const auto is_name = [](const std::string& c) { return c == "source" || c == "file" || c == "stream"; };
   std::vector<std::string> long_columns;
   for (const auto& c : columns)
     for (const auto& row : cells)
       for (const auto& [k, v] : row)
-        if (k == c && v.size() > kLongText && std::find(long_columns.begin(), long_columns.end(), c) == long_columns.end())
+        if (k == c && !is_name(c) && v.size() > kLongText && std::find(long_columns.begin(), long_columns.end(), c) == long_columns.end())
           long_columns.push_back(c);
   std::erase_if(columns, [&](const std::string& c) {
     return std::find(long_columns.begin(), long_columns.end(), c) != long_columns.end();
