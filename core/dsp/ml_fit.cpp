@@ -674,8 +674,9 @@ SpectralModeFitter::SpectralModeFitter(std::size_t segment_samples, double sampl
     impl_->tw[2 * m] = t.real();
     impl_->tw[2 * m + 1] = t.imag();
   }
-  // Room for every bin, so that fits never reallocate (real-time callers).
-  const std::size_t all_bins = segment_samples / 2 + 1;
+  // Room for every bin a fit can use (max_bins when the caller bounds it, else all), so that fits
+  // never reallocate (real-time callers).
+  const std::size_t all_bins = max_bins > 0 ? std::min(max_bins, segment_samples / 2 + 1) : segment_samples / 2 + 1;
   Problem& p = impl_->p;
   p.data.reserve(all_bins);
   p.w.reserve(all_bins);

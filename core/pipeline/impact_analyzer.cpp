@@ -113,8 +113,6 @@ ImpactAnalyzer::ImpactAnalyzer(const ImpactAnalyzerConfig& cfg, double fs) {
     }
   }
   fs_a_ = fs / static_cast<double>(in_dec_);
-  // CWT input length: the window, or its half-rate copy (ceil(n / 2) samples).
-  const std::size_t max_in = (max_samples() + in_dec_ - 1) / in_dec_;
   // The ridge follow-up asks for a row's noise gain at every column; noise_gain() integrates the
   // filter each time (measured: 46k instructions per impact), so the rows' gains are kept.
   row_gain_.resize(rows);
@@ -126,17 +124,6 @@ ImpactAnalyzer::ImpactAnalyzer(const ImpactAnalyzerConfig& cfg, double fs) {
   for (std::size_t r = 0; r < rows; ++r)
     for (std::size_t q = 0; q < rows; ++q)
       near_[r * rows + q] = std::abs(std::log(rows_hz_[r] / rows_hz_[q])) <= 1.0 / eta0_ ? 1 : 0;
-  const std::size_t max_cols = (max_in + cwt_->decimation() - 1) / cwt_->decimation() + 1;
-  power_.assign(rows * max_cols, 0.0);
-  w_.assign(max_cols, {});
-  wf_.assign(max_cols, {});
-  grid_.assign(rows * max_cols, {});
-  if (in_dec_ == 2) xf_.assign(max_in, 0.0f);
-  xd_.assign(max_in, 0.0);
-  scratch_.assign(2 * max_cols, 0.0);
-  row_median_.assign(rows, 0.0);
-  envelope_ws_.reserve(max_cols, max_cols);
-  ml_result_.modes.reserve(1);
   // ML fitters for segments of k/8 of the full decay window, k = 1..8 (at least 64 samples). The
   // lengths stay exact: rounding them to FFT-friendly sizes (1766 -> 1728 or 1536 at 51.2 kHz) was
   // measured to move replay-data estimates of misspecified cases by several percent (sim-second-mode
@@ -147,6 +134,7 @@ ImpactAnalyzer::ImpactAnalyzer(const ImpactAnalyzerConfig& cfg, double fs) {
   // full-rate DFT bins; the shorter ones (cut windows) round down by half a sample where the full-rate
   // length is odd. A window whose onset has the other parity (only at a stream start) holds one copy
   // sample less and takes the next shorter fitter.
+  // Only the lengths here (cheap); the buffers, the fitters and the FFTW warm-up wait for prepare().
   const std::size_t full = full_len;
   const std::size_t min_len = 64 / in_dec_;
   for (std::size_t k = 1; k <= 8; ++k) {
@@ -172,13 +160,31 @@ ImpactAnalyzer::ImpactAnalyzer(const ImpactAnalyzerConfig& cfg, double fs) {
     }
     if (len < min_len || (!fitter_len_.empty() && len == fitter_len_.back())) continue;
     fitter_len_.push_back(len);
-    const std::size_t max_bins = bins_for(len);
-    fitters_.push_back(std::make_unique<dsp::SpectralModeFitter>(len, fs_a_, max_bins));
+    fitter_bins_.push_back(bins_for(len));
   }
+}
+
+void ImpactAnalyzer::prepare() {
+  if (prepared_) return;
+  const std::size_t rows = rows_hz_.size();
+  // CWT input length: the window, or its half-rate copy (ceil(n / 2) samples).
+  const std::size_t max_in = (max_samples() + in_dec_ - 1) / in_dec_;
+  const std::size_t max_cols = (max_in + cwt_->decimation() - 1) / cwt_->decimation() + 1;
+  power_.assign(rows * max_cols, 0.0);
+  w_.assign(max_cols, {});
+  wf_.assign(max_cols, {});
+  grid_.assign(rows * max_cols, {});
+  if (in_dec_ == 2) xf_.assign(max_in, 0.0f);
+  xd_.assign(max_in, 0.0);
+  scratch_.assign(2 * max_cols, 0.0);
+  row_median_.assign(rows, 0.0);
+  envelope_ws_.reserve(max_cols, max_cols);
+  ml_result_.modes.reserve(1);
+  for (std::size_t k = 0; k < fitter_len_.size(); ++k)
+    fitters_.push_back(std::make_unique<dsp::SpectralModeFitter>(fitter_len_[k], fs_a_, fitter_bins_[k]));
   // Warm-up: FFTW allocates work space on a plan's first execution, so every plan runs once here
-  // (the CWT's forward and inverse transforms, each fitter's bin evaluation at its largest band).
-  // A StreamProcessor keeps several analyzers (one per maximum window) and the first impact that
-  // needs one may come long after start-up: analyze() must allocate nothing from the first call.
+  // (the CWT's forward and inverse transforms, each fitter's bin evaluation at its largest band):
+  // after prepare(), analyze() allocates nothing.
   {
     std::fill(xf_.begin(), xf_.end(), 0.0f);
     std::vector<float> zeros(max_in, 0.0f);
@@ -201,6 +207,7 @@ ImpactAnalyzer::ImpactAnalyzer(const ImpactAnalyzerConfig& cfg, double fs) {
       fitters_[k]->dft_bins(seg, 1, bins);
     }
   }
+  prepared_ = true;
 }
 
 ImpactAnalyzer::~ImpactAnalyzer() = default;
@@ -214,6 +221,7 @@ double ImpactAnalyzer::gain_at(double f_hz) const {
 }
 
 ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
+  prepare();
   ImpactEvent ev;
   ev.sample_index = win.onset_index;
   ev.t_s = static_cast<double>(win.onset_index) / fs_;
