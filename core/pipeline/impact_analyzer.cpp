@@ -94,29 +94,29 @@ ImpactAnalyzer::ImpactAnalyzer(const ImpactAnalyzerConfig& cfg, double fs) {
   cc.frequencies_hz = rows_hz_;
   cc.max_samples = max_samples();
   cc.band_limited = true;
-  cwt_ = std::make_unique<dsp::MorletCwt<float>>(cc);
+  // Only the layouts here (the transform and its plans are made by prepare()).
+  const auto full_layout = dsp::MorletCwt<float>::layout(cc);
+  cwt_cfg_ = cc;
+  fft_len_ = full_layout.fft_length;
   in_dec_ = 1;
   // Half rate (header comment, step 0) when the rate bound holds and the copy keeps the full-rate
   // grids: the CWT's column step (an even full-rate decimation) and the complete window's ML segment
   // (an even length whose half the copy holds with the onset at the pretrigger), so that the same
   // columns and DFT bins are analysed.
-  if (decimates(cfg, fs) && cwt_->decimation() % 2 == 0 && full_len % 2 == 0 &&
+  if (decimates(cfg, fs) && full_layout.decimation % 2 == 0 && full_len % 2 == 0 &&
       (n_pre_ + n_win_) / 2 >= (n_pre_ + n_ml_margin_ + 1) / 2 + full_len / 2) {
     dsp::MorletCwtConfig hc = cc;
     hc.sample_rate_hz = fs / 2.0;
     hc.max_samples = (max_samples() + 1) / 2;
     hc.half_rate_121_input = true;
-    auto half = std::make_unique<dsp::MorletCwt<float>>(hc);
-    if (2 * half->decimation() == cwt_->decimation()) {
-      cwt_ = std::move(half);
+    const auto half_layout = dsp::MorletCwt<float>::layout(hc);
+    if (2 * half_layout.decimation == full_layout.decimation) {
+      cwt_cfg_ = hc;
+      fft_len_ = half_layout.fft_length;
       in_dec_ = 2;
     }
   }
   fs_a_ = fs / static_cast<double>(in_dec_);
-  // The ridge follow-up asks for a row's noise gain at every column; noise_gain() integrates the
-  // filter each time (measured: 46k instructions per impact), so the rows' gains are kept.
-  row_gain_.resize(rows);
-  for (std::size_t r = 0; r < rows; ++r) row_gain_[r] = cwt_->noise_gain(rows_hz_[r]);
   // Rows within one filter sd (1/eta0 in ln f) of each other, for the ridge follow-up's stray and
   // recovery tests (the same expression it evaluated per column before; with the stop test compared
   // as power ratios, no logarithm per column: BM_AnalyzerRidgeLs 8.8 -> 8.4 us, results bit-identical).
@@ -167,6 +167,11 @@ ImpactAnalyzer::ImpactAnalyzer(const ImpactAnalyzerConfig& cfg, double fs) {
 void ImpactAnalyzer::prepare() {
   if (prepared_) return;
   const std::size_t rows = rows_hz_.size();
+  cwt_ = std::make_unique<dsp::MorletCwt<float>>(cwt_cfg_);
+  // The ridge follow-up asks for a row's noise gain at every column; noise_gain() integrates the
+  // filter each time (measured: 46k instructions per impact), so the rows' gains are kept.
+  row_gain_.resize(rows);
+  for (std::size_t r = 0; r < rows; ++r) row_gain_[r] = cwt_->noise_gain(rows_hz_[r]);
   // CWT input length: the window, or its half-rate copy (ceil(n / 2) samples).
   const std::size_t max_in = (max_samples() + in_dec_ - 1) / in_dec_;
   const std::size_t max_cols = (max_in + cwt_->decimation() - 1) / cwt_->decimation() + 1;

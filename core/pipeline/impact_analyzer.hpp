@@ -116,7 +116,7 @@ class ImpactAnalyzer {
   std::size_t window_samples() const { return n_win_; }
   /// Length of the CWT's forward FFT (StreamProcessor picks maxima whose length is even: FFTW's odd
   /// real transforms allocate work space on every execution).
-  std::size_t fft_length() const { return cwt_->fft_length(); }
+  std::size_t fft_length() const { return fft_len_; }
   /// 2 when the CWT and the ML fit run on the half-rate copy of the window, 1 at full rate.
   std::size_t input_decimation() const { return in_dec_; }
   /// The rate bound of the half-rate copy: the highest frequency the analysis reads (the top CWT row's
@@ -125,10 +125,11 @@ class ImpactAnalyzer {
   /// comment, step 0); input_decimation() tells the outcome.
   static bool decimates(const ImpactAnalyzerConfig& config, double sample_rate_hz);
 
-  /// Sizes only: the constructor makes the CWT's plans (its layout decides the window's final
-  /// length, StreamProcessor's maxima) and the ML segment lengths. prepare() allocates the analysis
-  /// buffers and the ML fitters and runs every FFT plan once (FFTW allocates work space on a plan's
-  /// first execution); analyze() calls it on its first use. After it, analyze() allocates nothing.
+  /// Sizes only: the constructor computes the CWT's layout (MorletCwt::layout: whether the half-rate
+  /// copy keeps the full-rate grids, the FFT length) and the ML segment lengths, without plans or
+  /// buffers. prepare() makes the transform, the analysis buffers and the ML fitters and runs every
+  /// FFT plan once (FFTW allocates work space on a plan's first execution); analyze() calls it on its
+  /// first use. After it, analyze() allocates nothing.
   /// (StreamProcessor keeps one analyzer per maximum window and prepares only those its decays use:
   /// preparing all of window_s = 1 s ... 16 ms cost 76 ms and 26 MB at 51.2 kHz.)
   void prepare();
@@ -149,6 +150,8 @@ class ImpactAnalyzer {
   std::vector<double> rows_hz_;
   std::vector<double> row_gain_;                 // cwt_->noise_gain(rows_hz_[r]), computed once
   std::vector<std::uint8_t> near_;               // rows x rows: |ln(f_r / f_q)| <= 1 / eta0
+  dsp::MorletCwtConfig cwt_cfg_;                 // the transform prepare() makes (full or half rate)
+  std::size_t fft_len_ = 0;                      // its FFT length (MorletCwt::layout)
   std::unique_ptr<dsp::MorletCwt<float>> cwt_;
   std::vector<float> xf_;                        // the half-rate copy in float (CWT input at half rate)
   std::vector<double> xd_;                       // the ML input in double: half-rate copy or the segment
