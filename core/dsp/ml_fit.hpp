@@ -10,6 +10,9 @@
 // it (hum, out-of-band modes), and white noise stays white and independent across bins. A low-order
 // complex polynomial in k ("residual terms", as in modal analysis) absorbs the smooth in-band tails of
 // modes outside the band. Free parameters per mode: f_j (damped frequency), ln zeta_j, Re C_j, Im C_j.
+// A component that does not decay within the segment (sigma T < 1e-6: a steady line fitted as a
+// mode) has no determined damping: its interval is null (status fit_failed) and the other parameters'
+// uncertainties are taken with it held undamped.
 // Optimiser: Levenberg-Marquardt with an analytic Jacobian: for up to 12 parameters an allocation-free
 // one on the normal equations with Marquardt scaling, for larger problems Eigen's MINPACK port (QR).
 #pragma once
