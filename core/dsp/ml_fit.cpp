@@ -649,7 +649,8 @@ void SpectralModeFitter::Impl::evaluate_bins(const double* x, std::size_t k_lo, 
   }
 }
 
-SpectralModeFitter::SpectralModeFitter(std::size_t segment_samples, double sample_rate_hz, std::size_t max_bins)
+SpectralModeFitter::SpectralModeFitter(std::size_t segment_samples, double sample_rate_hz, std::size_t max_bins,
+                                       std::size_t fit_bins)
     : impl_(std::make_unique<Impl>()) {
   if (segment_samples < 16 || segment_samples > (std::size_t{1} << 28))
     throw std::invalid_argument("SpectralModeFitter: segment_samples must be in [16, 2^28]");
@@ -675,9 +676,10 @@ SpectralModeFitter::SpectralModeFitter(std::size_t segment_samples, double sampl
     impl_->tw[2 * m] = t.real();
     impl_->tw[2 * m + 1] = t.imag();
   }
-  // Room for every bin a fit can use (max_bins when the caller bounds it, else all), so that fits
-  // never reallocate (real-time callers).
-  const std::size_t all_bins = max_bins > 0 ? std::min(max_bins, segment_samples / 2 + 1) : segment_samples / 2 + 1;
+  // Room for every bin a fit can use (fit_bins or max_bins when the caller bounds it, else all), so
+  // that fits never reallocate (real-time callers).
+  const std::size_t bound = fit_bins > 0 ? fit_bins : max_bins;
+  const std::size_t all_bins = bound > 0 ? std::min(bound, segment_samples / 2 + 1) : segment_samples / 2 + 1;
   Problem& p = impl_->p;
   p.data.reserve(all_bins);
   p.w.reserve(all_bins);

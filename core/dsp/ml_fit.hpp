@@ -53,7 +53,10 @@ class SpectralModeFitter {
   /// for the Goertzel evaluation (<= 2 log2 segment_samples, the rule fit() applies), no FFT plan is
   /// made (planning an awkward length, e.g. a prime, costs milliseconds at start-up); a fit with more
   /// bins then still works, through the Goertzel evaluation.
-  SpectralModeFitter(std::size_t segment_samples, double sample_rate_hz, std::size_t max_bins = 0);
+  /// fit_bins > 0: room reserved for the bins of one fit (default: max_bins, or every bin when
+  /// max_bins is 0); a fit over more bins than reserved still works but allocates.
+  SpectralModeFitter(std::size_t segment_samples, double sample_rate_hz, std::size_t max_bins = 0,
+                     std::size_t fit_bins = 0);
   ~SpectralModeFitter();
   SpectralModeFitter(const SpectralModeFitter&) = delete;
   SpectralModeFitter& operator=(const SpectralModeFitter&) = delete;

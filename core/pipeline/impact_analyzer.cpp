@@ -196,7 +196,9 @@ void ImpactAnalyzer::prepare() {
     line_bins_.assign(2 * most + 4, {});
   }
   for (std::size_t k = 0; k < fitter_len_.size(); ++k)
-    fitters_.push_back(std::make_unique<dsp::SpectralModeFitter>(fitter_len_[k], fs_a_, fitter_bins_[k]));
+    // Room for the line component's fit too: its band is at most twice the fit band plus 3 bins.
+    fitters_.push_back(std::make_unique<dsp::SpectralModeFitter>(fitter_len_[k], fs_a_, fitter_bins_[k],
+                                                                 2 * fitter_bins_[k] + 6));
   // Warm-up: FFTW allocates work space on a plan's first execution, so every plan runs once here
   // (the CWT's forward and inverse transforms, each fitter's bin evaluation at its largest band):
   // after prepare(), analyze() allocates nothing.
