@@ -2,7 +2,8 @@
 // several bins per pass) against a one-bin-at-a-time evaluation of the same arithmetic (exactly) and a
 // direct DFT in long double (to the recursion's round-off); fits by the fast kernels (model terms in
 // SSE2 pairs, compile-time-size normal equations, reused mode states) against fits by the plain
-// reference kernels (exactly). The fits' accuracy is tested in test_damping.cpp.
+// reference kernels (exactly); a steady line fitted as an undamped second component. The fits'
+// accuracy is tested in test_damping.cpp.
 #include <gtest/gtest.h>
 
 #include <cmath>
