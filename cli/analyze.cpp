@@ -1,8 +1,17 @@
-// `ridgewatch analyze FILE [--config F] [--channel N] [--rate HZ]`: the streaming pipeline
-// (core/pipeline/stream_processor.hpp, the same code ridgewatchd runs) over a file as fast as possible.
-// stdout: one JSON line per impact event (cli/event_json.hpp), nothing else. stderr: a summary line.
+// `ridgewatch analyze FILE [--config F] [--rig R] [--channel N | --all-channels] [--rate HZ]`: the
+// streaming pipeline (core/pipeline/stream_processor.hpp, the same code ridgewatchd runs) over a file
+// as fast as possible. stdout: one JSON line per impact event (cli/event_json.hpp), nothing else.
+// stderr: a summary line per stream (and, with a rig, the measured f against the model's f_d).
+//
+// Streams: one channel (--channel, default 0); a derived channel (source.combine of --config: a linear
+// combination of channels, e.g. the mesh coordinate q̇ = r_b1 φ̇1 + r_b2 φ̇2); or --all-channels, one
+// stream per channel with the same pipeline configuration, events carrying "stream": "ch<N>" (N 0-based)
+// and printed in time order (sample_index, then channel) once the file is done.
+#include <algorithm>
 #include <array>
 #include <cmath>
+#include <memory>
+#include <optional>
 #include <ostream>
 #include <stdexcept>
 #include <vector>
@@ -12,26 +21,71 @@
 #include "cli/replay_flags.hpp"
 #include "cli/config_yaml.hpp"
 #include "cli/event_json.hpp"
+#include "cli/rig_defaults.hpp"
 #include "core/pipeline/stream_processor.hpp"
+#include "drivers/combined_source.hpp"
 #include "drivers/replay_file.hpp"
 
 namespace ridgewatch::cli {
 
+namespace {
+
+struct Stream {
+  std::string name;  // "ch<N>" with --all-channels, else empty (no stream key in the events)
+  std::unique_ptr<drivers::SampleSource> source;
+  std::unique_ptr<pipeline::StreamProcessor> processor;
+  std::uint64_t index = 0;
+  bool done = false;
+};
+
+}  // namespace
+
 int run_analyze(const std::vector<std::string>& argv, std::ostream& out, std::ostream& err) {
-  const Args args(argv, {"--config", "--channel", "--rate"}, {});
+  const Args args(argv, {"--config", "--channel", "--rate", "--rig"}, {"--all-channels"});
   const std::string& path = single_file(args);
   const drivers::ReplayOptions ropt = replay_options(args);
+  const bool all_channels = args.has("--all-channels");
+  if (all_channels && args.has("--channel")) throw UsageError("--all-channels: not with --channel");
 
-  pipeline::PipelineConfig cfg = default_config().pipeline;
+  RidgewatchConfig full = default_config();
   std::string cfg_name = "defaults";
   if (const auto file = args.value("--config")) {
-    cfg = load_config_file(*file).pipeline;  // UsageError naming the file and YAML key
+    full = load_config_file(*file);  // UsageError naming the file and YAML key
     cfg_name = *file;
   }
+  // --rig replaces the configuration's `rig`; keys the configuration gives still win.
+  if (const auto rig = args.value("--rig")) apply_rig_defaults(full, *rig, "--rig");
+  pipeline::PipelineConfig cfg = full.pipeline;
+  const RigModelInfo& model = full.rig_model;
+  if (!model.note.empty()) err << "analyze: warning: " << model.path << ": " << model.note << "\n";
+  const CombineConfig& combine = full.source.combine;
+  const bool combined = combine.type != "none";
+  if (combined && (all_channels || args.has("--channel")))
+    throw UsageError(std::string(all_channels ? "--all-channels" : "--channel") + ": not with source.combine of " +
+                     cfg_name + " (the combination names its channels)");
 
-  auto source = drivers::open_replay(path, ropt);
-  cfg.sample_rate_hz = source->info().sample_rate_hz;
-  resolve_format_defaults(cfg, source->info().full_scale);  // clip_level from the file's format
+  std::vector<Stream> streams;
+  if (combined) {
+    const std::size_t available = drivers::open_replay(path, ropt)->info().channels;
+    const std::vector<double> gains = combine_gains(full, cfg_name, available);  // UsageError naming the key
+    if (combine.type == "mesh_velocity" && !model.radius_note.empty())
+      err << "analyze: warning: " << model.path << ": " << model.radius_note << "\n";
+    streams.push_back({"", drivers::open_combined_replay(path, combine.channels, gains, ropt.csv_rate_hz), nullptr});
+  } else {
+    streams.push_back({"", drivers::open_replay(path, ropt), nullptr});
+    if (all_channels) {
+      const std::size_t n = streams.front().source->info().channels;
+      streams.front().name = "ch0";
+      for (std::size_t ch = 1; ch < n; ++ch) {
+        drivers::ReplayOptions o = ropt;
+        o.channel = ch;
+        streams.push_back({"ch" + std::to_string(ch), drivers::open_replay(path, o), nullptr});
+      }
+    }
+  }
+  const drivers::SourceInfo& info = streams.front().source->info();
+  cfg.sample_rate_hz = info.sample_rate_hz;
+  resolve_format_defaults(cfg, info.full_scale);  // clip_level from the file's format
   try {
     pipeline::validate(cfg);
   } catch (const std::invalid_argument& e) {
@@ -40,32 +94,68 @@ int run_analyze(const std::vector<std::string>& argv, std::ostream& out, std::os
     throw UsageError(cfg_name + ": pipeline." + e.what() + " with the sample rate of " + path + " (" +
                      std::to_string(cfg.sample_rate_hz) + " Hz)");
   }
-  pipeline::StreamProcessor processor(cfg);
+  if (combined && std::isnan(cfg.analyzer.clip_level))
+    err << "analyze: note: the derived channel has no full scale; the clipping check is off unless "
+           "pipeline.analyzer.clip_level is set (in the combination's units)\n";
+  for (Stream& s : streams) s.processor = std::make_unique<pipeline::StreamProcessor>(cfg);
 
   constexpr std::size_t kBlock = 4096;
   std::vector<float> block(kBlock);
   std::vector<pipeline::ImpactEvent> events;
   events.reserve(64);
-  std::uint64_t index = 0;
-  auto emit = [&] {
-    for (const auto& e : events) out << event_json(e, path) << "\n";
+  std::optional<ModelGap> gap;
+  if (!model.path.empty()) gap.emplace(model.f_d_hz);
+  // Several streams: events are held and printed in time order at the end (an event is final only when
+  // its decay window is, up to window_s after its onset, so streams finish events at different times).
+  struct Held {
+    pipeline::ImpactEvent e;
+    std::size_t stream;
+  };
+  std::vector<Held> held;
+  auto take = [&](std::size_t s) {
+    for (const auto& e : events) {
+      if (gap && e.status == pipeline::ImpactStatus::ok) gap->add_ok(e.f_hz);
+      if (streams.size() == 1) out << event_json(e, path) << "\n";
+      else held.push_back({e, s});
+    }
     events.clear();
   };
-  for (;;) {
-    // Single precision straight from the decoder, as ridgewatchd reads it; InputError (exit 3) names
-    // the file.
-    const std::size_t n = source->read_float(block);
-    if (n == 0) break;
-    processor.process(std::span<const float>(block.data(), n), index, events);
-    index += n;
-    emit();
+  for (std::size_t live = streams.size(); live > 0;) {
+    for (std::size_t s = 0; s < streams.size(); ++s) {
+      Stream& st = streams[s];
+      if (st.done) continue;
+      // Single precision straight from the decoder, as ridgewatchd reads it; InputError (exit 3) names
+      // the file.
+      const std::size_t n = st.source->read_float(block);
+      if (n == 0) {
+        st.processor->flush(events);
+        st.done = true;
+        --live;
+      } else {
+        st.processor->process(std::span<const float>(block.data(), n), st.index, events);
+        st.index += n;
+      }
+      take(s);
+    }
   }
-  processor.flush(events);
-  emit();
+  std::stable_sort(held.begin(), held.end(), [](const Held& a, const Held& b) {
+    return a.e.sample_index != b.e.sample_index ? a.e.sample_index < b.e.sample_index : a.stream < b.stream;
+  });
+  for (const Held& h : held) out << event_json(h.e, path, {}, streams[h.stream].name) << "\n";
   out.flush();
-  err << "analyze: " << path << ": " << index << " samples, " << processor.impacts_detected() << " impacts, "
-      << processor.spikes_seen() << " spikes\n";
-  if (processor.impacts_detected() == 0 && index > 0)
+  std::uint64_t impacts = 0;
+  for (const Stream& st : streams) {
+    const auto& p = *st.processor;
+    impacts += p.impacts_detected();
+    err << "analyze: " << (combined ? st.source->info().name : path) << (st.name.empty() ? "" : " " + st.name) << ": "
+        << st.index << " samples, " << p.impacts_detected() << " impacts, " << p.spikes_seen() << " spikes\n";
+  }
+  if (gap)
+    err << "analyze: rig " << model.path << ": " << gap->text() << " (f_expected_hz "
+        << (model.f_expected ? "from the rig" : "from " + cfg_name) << ", detector band "
+        << std::round(10 * cfg.detector.band_lo_hz) / 10 << "-" << std::round(10 * cfg.detector.band_hi_hz) / 10 << " Hz "
+        << (model.band ? "from the rig" : "from " + cfg_name) << ")\n";
+  if (impacts == 0 && streams.front().index > 0)
     err << "analyze: no impacts in the band watched, " << cfg.detector.band_lo_hz << "-" << cfg.detector.band_hi_hz
         << " Hz (pipeline.detector.band_lo_hz/band_hi_hz of " << cfg_name << ", f_expected_hz "
         << cfg.analyzer.f_expected_hz << "); if this rig's impacts ring elsewhere, `ridgewatch survey " << path

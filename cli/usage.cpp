@@ -25,12 +25,17 @@ std::vector<Command> make_commands() {
        "FILE",
        "detect impacts and print one JSON line per impact (frequency, damping ratio, status, alarm)",
        {
-           {"--config", "F", "configuration file; its pipeline section is used (default: built-in defaults)"},
+           {"--config", "F", "configuration file; its pipeline section and rig are used (default: built-in defaults)"},
+           {"--rig", "RIG.yaml", "rig file: f_expected_hz and the detector band from its model unless --config sets them; "
+                                 "the summary reports measured f vs model f_d"},
            kChannel,
+           {"--all-channels", "", "one stream per channel, same pipeline; events carry \"stream\": \"ch<N>\" (N 0-based), "
+                                  "in time order"},
            kRate,
            kFormat,
        },
-       {"The same pipeline as ridgewatchd, on a file, as fast as possible."}},
+       {"The same pipeline as ridgewatchd, on a file, as fast as possible. With source.combine in --config the "
+        "stream is a derived channel (e.g. the mesh coordinate from two shaft channels)."}},
       {"modes",
        "FILE",
        "identify the modes (frequency, damping ratio, 95 % interval) of one free response",
@@ -76,7 +81,8 @@ std::vector<Command> make_commands() {
            {"--rate", "HZ", "output sample rate"},
            {"--noise", "REL", "sensor noise, relative to the response RMS"},
            {"--seed", "N", "random seed (same arguments and seed: same bytes)"},
-           {"--channels", "vib|vib,tacho", "channels written: the sensor, optionally a tacho pulse"},
+           {"--channels", "vib|vib,tacho|vib,shafts", "channels written: the sensor, optionally a tacho pulse or the shaft speeds "
+                                                        "phi1_dot, phi2_dot (rad/s) whose rb1 phi1_dot + rb2 phi2_dot is q dot"},
            {"--out", "BASE", "output base name; required", false, true},
            {"--list-effects", "", "print the effect catalogue as JSON and exit"},
        },
@@ -334,7 +340,7 @@ std::string bash_completion() {
        "  case $prev in\n"
        "    --format) COMPREPLY=($(compgen -W 'json table' -- \"$cur\")); return ;;\n"
        "    --method) COMPREPLY=($(compgen -W 'two-point ridge-ls ml' -- \"$cur\")); return ;;\n"
-       "    --channels) COMPREPLY=($(compgen -W 'vib vib,tacho' -- \"$cur\")); return ;;\n"
+       "    --channels) COMPREPLY=($(compgen -W 'vib vib,tacho vib,shafts' -- \"$cur\")); return ;;\n"
        "    --plots) COMPREPLY=($(compgen -d -- \"$cur\")); return ;;\n";
   // Other valued flags take a number or a name: nothing to offer.
   o << "    ";
