@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 
 #include "cli/args.hpp"
 #include "cli/rig_yaml.hpp"
@@ -45,6 +46,9 @@ RigBand rig_band(const model::RigParameters& rig) {
 
 void apply_rig_defaults(RidgewatchConfig& c, const std::string& rig_path, const std::string& key) {
   RigConfig rig;
+  std::error_code ec;
+  if (std::filesystem::exists(rig_path, ec) && !std::filesystem::is_regular_file(rig_path, ec))
+    throw UsageError(key + ": " + rig_path + ": not a regular file");  // e.g. a device that never ends
   try {
     rig = load_rig_yaml(rig_path);
   } catch (const UsageError& e) {

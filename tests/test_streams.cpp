@@ -193,6 +193,10 @@ TEST_F(Streams, ShaftChannelsCombineToTheSimulatorsMeshChannel) {
     // far inside their intervals; 1e-4 relative leaves room for the ML fit's iteration tolerance.
     EXPECT_NEAR(em[i]["zeta"].get<double>(), eq[i]["zeta"].get<double>(), 1e-4 * eq[i]["zeta"].get<double>());
     EXPECT_NEAR(em[i]["f_hz"].get<double>(), eq[i]["f_hz"].get<double>(), 1e-5 * eq[i]["f_hz"].get<double>());
+    // The simulator's split is proportional, so any gains would give the same ζ and f: the amplitude
+    // says whether the combination is q̇ in m/s, the vib channel's amplitude over its 50 units per m/s.
+    EXPECT_NEAR(em[i]["amplitude"].get<double>(), eq[i]["amplitude"].get<double>() / 50.0,
+                1e-5 * eq[i]["amplitude"].get<double>() / 50.0);
   }
   EXPECT_NE(m.err.find("[1+2]"), std::string::npos) << m.err;  // the summary names the combination
 }
@@ -331,6 +335,7 @@ TEST_F(Streams, CombineErrorsAreExit2NamingTheKey) {
        "source.combine.sensitivity[1]: must be > 0"},
       {"source:\n  combine:\n    type: coefficients\n    channels: [0, 1.5]\n", "source.combine.channels[1]: must be a whole number"},
       {"rig: missing-rig.yaml\n", "rig: "},
+      {"rig: /dev/zero\n", "rig: /dev/zero: not a regular file"},  // would never end
   };
   int k = 0;
   for (const auto& c : cases) {
