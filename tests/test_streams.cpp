@@ -419,5 +419,63 @@ TEST_F(Streams, AllChannelsEqualsOneAnalyzePerChannel) {
   EXPECT_EQ(total, ev.size());  // every event carries a known stream
 }
 
+// --summary over two files: the figures recomputed here from the files' own event lines.
+TEST_F(Streams, SummaryOfSeveralFilesMatchesTheirEvents) {
+  std::vector<std::string> files;
+  for (int k = 0; k < 2; ++k) {
+    indep::RigSpec s;
+    s.duration_s = 1.2;
+    s.response = {.f_hz = 860.0, .zeta = k ? 0.02 : 0.03, .amplitude = 0.5};
+    s.noise_sd = 0.002;
+    s.seed = 40 + static_cast<std::uint64_t>(k);
+    const auto rec = indep::make_rig_record(s);
+    files.push_back((dir_ / ("f" + std::to_string(k) + ".wav")).string());
+    indep::write_wav_mono(files.back(), rec.x, s.fs_hz, indep::SampleFormat::pcm24);
+  }
+  const CliResult r = run_cli({"analyze", "--summary", files[0], files[1]});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const auto doc = nlohmann::json::parse(r.out);
+  ASSERT_EQ(doc["summary"].size(), 2u);
+  std::vector<double> all;
+  std::size_t events = 0;
+  auto mean_sd = [](const std::vector<double>& x) {
+    double m = 0, v = 0;
+    for (double a : x) m += a;
+    m /= static_cast<double>(x.size());
+    for (double a : x) v += (a - m) * (a - m);
+    return std::pair{m, std::sqrt(v / static_cast<double>(x.size() - 1))};
+  };
+  for (std::size_t k = 0; k < 2; ++k) {
+    const auto ev = events_of(run_cli({"analyze", files[k]}));
+    std::vector<double> z;
+    for (const auto& e : ev)
+      if (e["status"] == "ok") z.push_back(e["zeta"].get<double>());
+    const auto& row = doc["summary"][k];
+    EXPECT_EQ(row["source"], files[k]);
+    EXPECT_EQ(row["events"].get<std::size_t>(), ev.size());
+    ASSERT_EQ(row["ok"].get<std::size_t>(), z.size());
+    ASSERT_GE(z.size(), 20u);
+    const auto [m, sd] = mean_sd(z);
+    EXPECT_NEAR(row["zeta_mean"].get<double>(), m, 1e-12 * m);  // same numbers, summation order aside
+    EXPECT_NEAR(row["zeta_sd"].get<double>(), sd, 1e-6 * sd);
+    // 95 % interval of the mean: t(0.975, k-1) sd / sqrt(k); t lies in [2.00, 2.09] for 20-60 ok events.
+    const double half = (row["zeta_mean_ci95"][1].get<double>() - row["zeta_mean_ci95"][0].get<double>()) / 2;
+    const double t = half / (sd / std::sqrt(static_cast<double>(z.size())));
+    EXPECT_GT(t, 2.00);
+    EXPECT_LT(t, 2.094);
+    EXPECT_NEAR(m, k ? 0.02 : 0.03, 0.02 * (k ? 0.02 : 0.03));  // the generator's ζ, 2 %
+    all.insert(all.end(), z.begin(), z.end());
+    events += ev.size();
+  }
+  EXPECT_EQ(doc["overall"]["files"], 2);
+  EXPECT_EQ(doc["overall"]["events"].get<std::size_t>(), events);
+  EXPECT_EQ(doc["overall"]["ok"].get<std::size_t>(), all.size());
+  EXPECT_NEAR(doc["overall"]["zeta_mean"].get<double>(), mean_sd(all).first, 1e-12);
+  // Without --summary, one file only.
+  const CliResult two = run_cli({"analyze", files[0], files[1]});
+  EXPECT_EQ(two.exit_code, 2);
+  EXPECT_NE(two.err.find("expects exactly one FILE"), std::string::npos) << two.err;
+}
+
 }  // namespace
 }  // namespace ridgewatch::test
