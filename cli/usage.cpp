@@ -310,7 +310,8 @@ std::string man_config(const std::string& version, const std::string& config_yam
   std::ostringstream o;
   man_header(o, "RIDGEWATCH.YAML", 5, version);
   o << ".SH NAME\nridgewatch.yaml \\- configuration of ridgewatchd and ridgewatch analyze\n"
-    << ".SH DESCRIPTION\nA YAML file with the sections source, pipeline, output, gpio and logging. "
+    << ".SH DESCRIPTION\nA YAML file with the key rig (a rig file whose model supplies the expected "
+       "frequency and the detector band) and the sections source, pipeline, output, gpio and logging. "
        "A key left out keeps its default; unknown or mistyped keys and out-of-range values are errors "
        "(exit 2) naming the key. Check a file with\n.B ridgewatchd \\-\\-check\\-config\n.IR FILE ;\n"
        "print the defaults with\n.BR \"ridgewatchd \\-\\-print\\-defaults\" .\n"
