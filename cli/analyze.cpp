@@ -14,11 +14,14 @@
 // same over all ok events of all files pooled.
 #include <algorithm>
 #include <array>
+#include <atomic>
+#include <exception>
 #include <cmath>
 #include <memory>
 #include <optional>
 #include <ostream>
 #include <stdexcept>
+#include <thread>
 #include <vector>
 
 #include <nlohmann/json.hpp>
@@ -42,7 +45,6 @@ struct Stream {
   std::unique_ptr<drivers::SampleSource> source;
   std::unique_ptr<pipeline::StreamProcessor> processor;
   std::uint64_t index = 0;
-  bool done = false;
 };
 
 /// Two-sided 95 % quantile of Student's t with nu degrees of freedom: exact to 3 decimals from tables for
@@ -103,7 +105,8 @@ struct Tally {
 }  // namespace
 
 int run_analyze(const std::vector<std::string>& argv, std::ostream& out, std::ostream& err) {
-  const Args args(argv, {"--config", "--channel", "--rate", "--rig"}, {"--all-channels", "--summary"});
+  const Args args(argv, {"--config", "--channel", "--rate", "--rig", "--jobs"}, {"--all-channels", "--summary"});
+  const auto jobs = static_cast<std::size_t>(args.integer("--jobs", 1, 1, 256));
   const bool summary = args.has("--summary");
   if (!summary) single_file(args);  // exactly one FILE unless --summary
   if (args.positional().empty()) throw UsageError("expects FILE (--summary: one or more)");
@@ -167,46 +170,76 @@ int run_analyze(const std::vector<std::string>& argv, std::ostream& out, std::os
     for (Stream& s : streams) s.processor = std::make_unique<pipeline::StreamProcessor>(cfg);
 
     constexpr std::size_t kBlock = 4096;
-    std::vector<float> block(kBlock);
-    std::vector<pipeline::ImpactEvent> events;
-    events.reserve(64);
     std::optional<ModelGap> gap;
     if (!model.path.empty()) gap.emplace(model.f_d_hz);
-    // Several streams: events are held and printed in time order at the end (an event is final only when
-    // its decay window is, up to window_s after its onset, so streams finish events at different times).
+    std::vector<Tally> tallies(streams.size());
+    auto account = [&](std::size_t s, const pipeline::ImpactEvent& e) {
+      if (gap && e.status == pipeline::ImpactStatus::ok) gap->add_ok(e.f_hz);
+      if (summary) tallies[s].add(e);
+    };
+    // One stream: its events are printed block by block as they complete. Several: each stream runs to
+    // its end on one of --jobs threads (streams share nothing but the file; their processors, FFT plans
+    // included, are made above on this thread), and the events are printed in time order at the end (an
+    // event is final only when its decay window is, up to window_s after its onset, so streams finish
+    // events at different moments).
+    const bool print_as_we_go = streams.size() == 1 && !summary;
+    std::vector<std::vector<pipeline::ImpactEvent>> sinks(streams.size());
+    auto run_stream = [&](std::size_t s) {
+      Stream& st = streams[s];
+      std::vector<float> block(kBlock);
+      std::vector<pipeline::ImpactEvent>& events = sinks[s];
+      events.reserve(64);
+      for (bool more = true; more;) {
+        // Single precision straight from the decoder, as ridgewatchd reads it; InputError (exit 3)
+        // names the file.
+        const std::size_t n = st.source->read_float(block);
+        if (n == 0) {
+          st.processor->flush(events);
+          more = false;
+        } else {
+          st.processor->process(std::span<const float>(block.data(), n), st.index, events);
+          st.index += n;
+        }
+        if (print_as_we_go) {
+          for (const auto& e : events) {
+            account(s, e);
+            out << event_json(e, path) << "\n";
+          }
+          events.clear();
+        }
+      }
+    };
+    if (streams.size() == 1) {
+      run_stream(0);
+    } else {
+      std::atomic<std::size_t> next{0};
+      std::vector<std::exception_ptr> failures(streams.size());
+      auto worker = [&] {
+        for (std::size_t s; (s = next.fetch_add(1)) < streams.size();) {
+          try {
+            run_stream(s);
+          } catch (...) {
+            failures[s] = std::current_exception();
+          }
+        }
+      };
+      std::vector<std::thread> pool;
+      for (std::size_t j = 1; j < std::min<std::size_t>(jobs, streams.size()); ++j) pool.emplace_back(worker);
+      worker();
+      for (auto& t : pool) t.join();
+      for (const auto& f : failures)
+        if (f) std::rethrow_exception(f);  // the first stream's error, as the serial order would give
+    }
     struct Held {
       pipeline::ImpactEvent e;
       std::size_t stream;
     };
     std::vector<Held> held;
-    std::vector<Tally> tallies(streams.size());
-    auto take = [&](std::size_t s) {
-      for (const auto& e : events) {
-        if (gap && e.status == pipeline::ImpactStatus::ok) gap->add_ok(e.f_hz);
-        if (summary) tallies[s].add(e);
-        else if (streams.size() == 1) out << event_json(e, path) << "\n";
-        else held.push_back({e, s});
+    for (std::size_t s = 0; s < streams.size(); ++s)
+      for (const auto& e : sinks[s]) {
+        account(s, e);
+        if (!summary) held.push_back({e, s});
       }
-      events.clear();
-    };
-    for (std::size_t live = streams.size(); live > 0;) {
-      for (std::size_t s = 0; s < streams.size(); ++s) {
-        Stream& st = streams[s];
-        if (st.done) continue;
-        // Single precision straight from the decoder, as ridgewatchd reads it; InputError (exit 3) names
-        // the file.
-        const std::size_t n = st.source->read_float(block);
-        if (n == 0) {
-          st.processor->flush(events);
-          st.done = true;
-          --live;
-        } else {
-          st.processor->process(std::span<const float>(block.data(), n), st.index, events);
-          st.index += n;
-        }
-        take(s);
-      }
-    }
     std::stable_sort(held.begin(), held.end(), [](const Held& a, const Held& b) {
       return a.e.sample_index != b.e.sample_index ? a.e.sample_index < b.e.sample_index : a.stream < b.stream;
     });

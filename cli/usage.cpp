@@ -31,6 +31,7 @@ std::vector<Command> make_commands() {
            kChannel,
            {"--all-channels", "", "one stream per channel, same pipeline; events carry \"stream\": \"ch<N>\" (N 0-based), "
                                   "in time order"},
+           {"--jobs", "N", "with several streams (--all-channels): run them on N threads, 1-256 (default 1)"},
            {"--summary", "", "FILE... allowed: instead of the events one JSON object, per file and stream and over all, "
                              "with the count of events and of ok ones, mean zeta, its spread and 95 % interval, mean f"},
            kRate,

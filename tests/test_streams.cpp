@@ -396,6 +396,10 @@ TEST_F(Streams, AllChannelsEqualsOneAnalyzePerChannel) {
   indep::write_wav(wav, frames, fs, static_cast<int>(kChannels), indep::SampleFormat::pcm24);
   const CliResult all = run_cli({"analyze", wav, "--all-channels"});
   ASSERT_EQ(all.exit_code, 0) << all.err;
+  // On 3 threads: the same bytes (streams are independent; the merge orders by sample_index, channel).
+  const CliResult threaded = run_cli({"analyze", wav, "--all-channels", "--jobs", "3"});
+  ASSERT_EQ(threaded.exit_code, 0) << threaded.err;
+  EXPECT_EQ(threaded.out, all.out);
   const auto ev = events_of(all);
   // Time order across streams.
   for (std::size_t i = 1; i < ev.size(); ++i)
