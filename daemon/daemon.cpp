@@ -379,6 +379,10 @@ struct Daemon::Impl {
         if (next.source.type != cfg.source.type || next.source.replay.path != cfg.source.replay.path ||
             next.source.alsa.device != cfg.source.alsa.device)
           spdlog::warn("SIGHUP: source changes take effect after a restart; keeping the current source");
+        // A derived channel's gains are fixed when the source opens (radii of the rig at that time).
+        if (next.source.combine.type != "none" &&
+            (next.rig_model.rb1_m != cfg.rig_model.rb1_m || next.rig_model.rb2_m != cfg.rig_model.rb2_m))
+          spdlog::warn("SIGHUP: the rig's base radii changed; source.combine keeps the old ones until a restart");
         next.source = cfg.source;
         if (next.output.mqtt.host != cfg.output.mqtt.host || next.http.listen != cfg.http.listen)
           spdlog::warn("SIGHUP: output.mqtt and http changes take effect after a restart; keeping the current ones");
