@@ -394,19 +394,23 @@ std::vector<double> combine_gains(const RidgewatchConfig& c, const std::string& 
   if (n == 0) fail("channels", "must list the input channels combined (e.g. [0, 1])");
   for (std::size_t i = 0; i < n; ++i) {
     for (std::size_t j = 0; j < i; ++j)
-      if (k.channels[j] == k.channels[i]) fail("channels", "channel " + std::to_string(k.channels[i]) + " is listed twice");
+      if (k.channels[j] == k.channels[i])
+        fail("channels", "channel " + std::to_string(k.channels[i]) + " is listed twice");
     if (available > 0 && k.channels[i] >= available)
-      fail("channels[" + std::to_string(i) + "]", "channel " + std::to_string(k.channels[i]) + " out of range (the source has " +
-                                                       std::to_string(available) + " channels, 0-" +
-                                                       std::to_string(available - 1) + ")");
+      fail("channels[" + std::to_string(i) + "]",
+           "channel " + std::to_string(k.channels[i]) + " out of range (the source has " + std::to_string(available) +
+               " channels, 0-" + std::to_string(available - 1) + ")");
   }
   if (!k.sensitivity.empty() && k.sensitivity.size() != n)
-    fail("sensitivity", "needs one value per channel (" + std::to_string(n) + "), got " + std::to_string(k.sensitivity.size()));
+    fail("sensitivity",
+         "needs one value per channel (" + std::to_string(n) + "), got " + std::to_string(k.sensitivity.size()));
   for (std::size_t i = 0; i < k.sensitivity.size(); ++i)
     if (!(k.sensitivity[i] > 0)) fail("sensitivity[" + std::to_string(i) + "]", "must be > 0");
   std::vector<double> coef;
   if (k.type == "mesh_velocity") {
-    if (n != 2) fail("channels", "mesh_velocity needs exactly two channels, [φ̇1 of the pinion, φ̇2 of the wheel] (got " + std::to_string(n) + ")");
+    if (n != 2)
+      fail("channels", "mesh_velocity needs exactly two channels, [φ̇1 of the pinion, φ̇2 of the wheel] (got " +
+                           std::to_string(n) + ")");
     if (!k.coefficients.empty()) fail("coefficients", "are taken from the rig file for mesh_velocity; leave them out");
     if (c.rig_model.path.empty()) {
       if (need_rig) fail("type", "mesh_velocity needs the rig file (key rig, or --rig) for the base radii rb1, rb2");
@@ -416,7 +420,8 @@ std::vector<double> combine_gains(const RidgewatchConfig& c, const std::string& 
     }
   } else {
     if (k.coefficients.size() != n)
-      fail("coefficients", "needs one value per channel (" + std::to_string(n) + "), got " + std::to_string(k.coefficients.size()));
+      fail("coefficients",
+           "needs one value per channel (" + std::to_string(n) + "), got " + std::to_string(k.coefficients.size()));
     coef = k.coefficients;
   }
   for (std::size_t i = 0; i < n; ++i)

@@ -84,8 +84,9 @@ std::vector<Command> make_commands() {
            {"--rate", "HZ", "output sample rate"},
            {"--noise", "REL", "sensor noise, relative to the response RMS"},
            {"--seed", "N", "random seed (same arguments and seed: same bytes)"},
-           {"--channels", "vib|vib,tacho|vib,shafts", "channels written: the sensor, optionally a tacho pulse or the shaft speeds "
-                                                        "phi1_dot, phi2_dot (rad/s) whose rb1 phi1_dot + rb2 phi2_dot is q dot"},
+           {"--channels", "vib|vib,tacho|vib,shafts",
+            "channels written: the sensor, optionally a tacho pulse or the shaft speeds phi1_dot, phi2_dot (rad/s) "
+            "whose rb1 phi1_dot + rb2 phi2_dot is q dot"},
            {"--out", "BASE", "output base name; required", false, true},
            {"--list-effects", "", "print the effect catalogue as JSON and exit"},
        },
