@@ -9,9 +9,11 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <memory>
 #include <nlohmann/json.hpp>
 #include <sstream>
 #include <string>
@@ -22,6 +24,7 @@
 #include "cli/rig_defaults.hpp"
 #include "cli/rig_yaml.hpp"
 #include "cli_runner.hpp"
+#include "drivers/combined_source.hpp"
 // GCC 12 -O2 reports a false -Wstringop-overflow inside indep::write_wav's header bytes (vector insert
 // of a 4-byte tag), as in test_modes_cli.cpp.
 #pragma GCC diagnostic push
@@ -479,6 +482,53 @@ TEST_F(Streams, SummaryOfSeveralFilesMatchesTheirEvents) {
   const CliResult two = run_cli({"analyze", files[0], files[1]});
   EXPECT_EQ(two.exit_code, 2);
   EXPECT_NE(two.err.find("expects exactly one FILE"), std::string::npos) << two.err;
+}
+
+// CombinedSource on its own: the weighted sum in lockstep, and inputs of different lengths are bad input.
+class VectorSource : public drivers::SampleSource {
+ public:
+  VectorSource(std::vector<double> x, std::size_t chunk) : x_(std::move(x)), chunk_(chunk) {
+    info_.name = "vec";
+    info_.sample_rate_hz = 1000;
+  }
+  const drivers::SourceInfo& info() const override { return info_; }
+  std::size_t read(std::span<double> out) override {
+    const std::size_t n = std::min({out.size(), chunk_, x_.size() - pos_});
+    for (std::size_t i = 0; i < n; ++i) out[i] = x_[pos_ + i];
+    pos_ += n;
+    return n;
+  }
+
+ private:
+  std::vector<double> x_;
+  std::size_t chunk_, pos_ = 0;
+  drivers::SourceInfo info_;
+};
+
+TEST(CombinedSource, SumsInLockstepAndRejectsUnequalLengths) {
+  std::vector<double> a(1000), b(1000);
+  for (std::size_t i = 0; i < a.size(); ++i) {
+    a[i] = std::sin(0.01 * static_cast<double>(i));
+    b[i] = static_cast<double>(i % 7) - 3.0;
+  }
+  std::vector<std::unique_ptr<drivers::SampleSource>> in;
+  in.push_back(std::make_unique<VectorSource>(a, 300));
+  in.push_back(std::make_unique<VectorSource>(b, 7));  // short reads: the combination waits for them
+  drivers::CombinedSource c(std::move(in), {2.0, -0.5}, "mix");
+  EXPECT_EQ(c.info().name, "mix");
+  EXPECT_FALSE(c.info().full_scale.has_value());
+  const std::vector<double> y = drivers::read_all(c);
+  ASSERT_EQ(y.size(), a.size());
+  for (std::size_t i = 0; i < y.size(); ++i) ASSERT_DOUBLE_EQ(y[i], 2.0 * a[i] - 0.5 * b[i]) << i;
+
+  std::vector<std::unique_ptr<drivers::SampleSource>> uneven;
+  uneven.push_back(std::make_unique<VectorSource>(a, 256));
+  uneven.push_back(std::make_unique<VectorSource>(std::vector<double>(900, 1.0), 256));
+  drivers::CombinedSource u(std::move(uneven), {1.0, 1.0}, "uneven");
+  EXPECT_THROW(drivers::read_all(u), drivers::InputError);
+  std::vector<std::unique_ptr<drivers::SampleSource>> one;
+  one.push_back(std::make_unique<VectorSource>(a, 256));
+  EXPECT_THROW(drivers::CombinedSource(std::move(one), {1.0, 2.0}, "x"), std::invalid_argument);
 }
 
 }  // namespace
