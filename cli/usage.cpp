@@ -22,7 +22,7 @@ const Flag kPlots{"--plots", "DIR", "also write SVG plots and DIR/index.html (DI
 std::vector<Command> make_commands() {
   return {
       {"analyze",
-       "FILE | --summary FILE...",
+       "FILE",
        "detect impacts and print one JSON line per impact (frequency, damping ratio, status, alarm)",
        {
            {"--config", "F", "configuration file; its pipeline section and rig are used (default: built-in defaults)"},
@@ -32,7 +32,7 @@ std::vector<Command> make_commands() {
            {"--all-channels", "", "one stream per channel, same pipeline; events carry \"stream\": \"ch<N>\" (N 0-based), "
                                   "in time order"},
            {"--jobs", "N", "with several streams (--all-channels): run them on N threads, 1-256 (default 1)"},
-           {"--summary", "", "FILE... allowed: instead of the events one JSON object, per file and stream and over all, "
+           {"--summary", "", "several FILEs allowed; instead of the events one JSON object, per file and stream and over all, "
                              "with the count of events and of ok ones, mean zeta, its spread and 95 % interval, mean f"},
            kRate,
            kFormat,
