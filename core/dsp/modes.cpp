@@ -463,6 +463,7 @@ ModeSearchResult identify_modes(std::span<const double> signal_in, double fs, co
     Peak peak;
     EnvelopeResult envr;
     std::vector<std::size_t> unresolved;  // indices into cand of neighbours closer than eta0 separates
+    bool user_eta0_failed = false;        // the user's eta0 gave no envelope estimate (read at the automatic one)
   };  std::vector<std::pair<double, double>> fitted;  // (f, zeta) of the last joint fit, for the residual
   auto analyse = [&](const std::vector<Peak>& cands) {
   std::vector<Work> work;
@@ -502,6 +503,21 @@ ModeSearchResult identify_modes(std::span<const double> signal_in, double fs, co
     }
     mode.eta0 = eta0;
     mode.resolved = eta0 >= needed * 0.999;
+    // The user's eta0 may be unable to read this decay (kernel longer than the usable decay, or the
+    // edge effect covering it): read it at the automatic eta0 instead, so that the mode still takes its
+    // part in the joint fit (left out, it biases its neighbours' fits: Table 1 at eta0 50 lost the
+    // 500 Hz mode and gave zeta 7 % off at 250 Hz with status ok). Its envelope estimators are then not
+    // ok and the note says why.
+    if (opt.eta0 > 0 && !std::isfinite(er.ridge_ls.zeta)) {
+      const double eta0_auto = std::clamp(std::max(7.0, needed), 5.0, std::max(5.0, std::min(kMaxEta0, eta0_record)));
+      EnvelopeResult alt = estimate_envelope(signal, fs, eta0_auto, pk.f_hz, floor_white, opt, env);
+      if (std::isfinite(alt.ridge_ls.zeta)) {
+        er = std::move(alt);
+        wk.user_eta0_failed = true;
+        add_note(mode.note, "eta0 " + fmt_g(opt.eta0) + " cannot read this decay (its kernel is too long for it); read at eta0 " +
+                                fmt_g(eta0_auto) + " for the fit, envelope estimators not ok");
+      }
+    }
     // A peak whose envelope gives no decay estimate at all is not a free-response mode (noise bump,
     // hum, the skirt of the record edge): leave it out of the joint fit and the report.
     if (!std::isfinite(er.ridge_ls.zeta)) continue;
@@ -706,6 +722,9 @@ ModeSearchResult identify_modes(std::span<const double> signal_in, double fs, co
     m.ridge_ls = er.ridge_ls;
     m.backbone = er.backbone;
     for (DampingEstimate* e : {&m.two_point, &m.ridge_ls, &m.ml}) sanitize(*e, result.f_min_hz, result.f_max_hz, m.note);
+    if (wk.user_eta0_failed)
+      for (DampingEstimate* e : {&m.two_point, &m.ridge_ls})
+        if (e->status == EstimateStatus::ok) e->status = EstimateStatus::too_short;
     // A ridge that left its mode: its frequency changes between the window halves by more than half
     // the filter's standard deviation and beyond noise, or it sits nearer another detected peak.
     bool left = false;
@@ -795,7 +814,10 @@ ModeSearchResult identify_modes(std::span<const double> signal_in, double fs, co
     // ml is ok only when an independent estimator confirms it: without an ok ridge-ls, nothing does.
     if (m.ml.status == EstimateStatus::ok && m.ridge_ls.status != EstimateStatus::ok) {
       m.ml.status = EstimateStatus::inconsistent;
-      add_note(m.note, "ml not confirmed: ridge-ls is " + std::string(to_string(m.ridge_ls.status)));
+      add_note(m.note, "ml not confirmed: ridge-ls is " + std::string(to_string(m.ridge_ls.status)) +
+                           (opt.eta0 > 0 && m.ridge_ls.status == EstimateStatus::too_short
+                                ? " at eta0 " + fmt_g(opt.eta0) + " (a smaller eta0, or the automatic choice, fits the decay)"
+                                : std::string()));
     }
     const DampingEstimate* ref = m.ml.status == EstimateStatus::ok ? &m.ml : m.ridge_ls.status == EstimateStatus::ok ? &m.ridge_ls : nullptr;
     if (m.two_point.status == EstimateStatus::ok) {
