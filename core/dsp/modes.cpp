@@ -746,13 +746,22 @@ ModeSearchResult identify_modes(std::span<const double> signal_in, double fs, co
         if (e->status == EstimateStatus::ok) e->status = EstimateStatus::inconsistent;
       add_note(m.note, "the ridge left its mode (frequency drifts within the window)");
     }
-    // A detected peak that was left out (no envelope estimate) within this mode's resolution: the fits
+    // A detected peak that was left out (no envelope estimate) close to this mode: the fits
     // of this mode may have absorbed it (random independent signals: a pair 3.9 Hz apart at 241/245 Hz,
     // the 245 Hz peak left out, the 241 Hz mode's zeta 21 % off with status ok).
     for (const Peak& q : dropped) {
       const double df = std::abs(q.f_hz - wk.peak.f_hz);
-      const double ratio = std::sqrt(std::max(1.0, q.level / wk.peak.level));
-      if (df > 0 && std::sqrt(2.0 * std::log(100.0 * ratio)) * wk.peak.f_hz / df > m.eta0) {
+      // Only a peak within 10 dB of this one matters (it can pull the fit); weaker ones are noise bumps
+      // and minor modes whose share the estimators' cross-check sees.
+      // And only one farther than 3 half-power bandwidths of this mode: nearer, it is this mode's own
+      // peak seen again (short, heavily damped decays between impacts show that).
+      const double zeta_own = std::isfinite(m.ml.zeta) ? m.ml.zeta : m.ridge_ls.zeta;
+      const bool own = std::isfinite(zeta_own) && df <= 3.0 * zeta_own * wk.peak.f_hz;
+      // Within 6 / T of the analysed length T (a few of the record's frequency resolution 1 / T): closer,
+      // the fit cannot tell the two apart unless both are modelled (the 241/245 Hz pair is 4.2 / T
+      // apart); farther, the joint fit's band and residual terms keep them apart (a stationary line
+      // 200 Hz from a mode in a 40 ms segment between impacts does no harm).
+      if (df > 0 && !own && q.level >= 0.1 * wk.peak.level && df < 6.0 / after_s) {
         for (DampingEstimate* e : {&m.two_point, &m.ridge_ls, &m.ml})
           if (e->status == EstimateStatus::ok) e->status = EstimateStatus::inconsistent;
         add_note(m.note, "a detected neighbour at " + fmt_g(q.f_hz) + " Hz could not be analysed: this mode's fit may include it");
