@@ -14,6 +14,7 @@
 //     bandwidth and off the mesh lines and sidebands, damped below 0.2; a damping drift keeping ζ > 0).
 #pragma once
 
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -44,6 +45,9 @@ struct DiagnoseOptions {
   std::vector<std::string> candidates;  ///< empty: every diagnosable effect
   /// LM restarts of an accepted model from its own optimum (until χ² improves by less than 1).
   int polish_restarts = 2;
+  /// Called with one line per stage (each candidate fit, each round's outcome) for progress reports;
+  /// the caller decides where it goes (the CLI: stderr). Empty: silent.
+  std::function<void(const std::string&)> progress;
 };
 
 struct DiagnoseResult {
