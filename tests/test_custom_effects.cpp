@@ -210,3 +210,45 @@ TEST(CustomEffects, DiagnoseFindsAHiddenEffectOnlyWithTheCustomEffect) {
 }
 
 }  // namespace
+
+namespace {
+
+TEST(CustomEffects, CliSimulateCompareWithFixedValueAndDiagnoseProgress) {
+  // The whole path as a user runs it: a rig file with the custom effect, `simulate --effect`,
+  // `compare --with NAME:key=value!` (fixed), bad --with values (exit 2), and diagnose's progress
+  // lines on stderr (none with --quiet). 0.5 s at 25.6 kHz, 4 impacts: the loop's smallest run.
+  const auto dir = std::filesystem::temp_directory_path() / ("ridgewatch-custom-cli-" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  const std::string rig = (dir / "rig.yaml").string();
+  std::ofstream(rig) << paper_rig_text()
+                     << "model:\n  custom_effects:\n    - name: stiffness_drift\n      force: \"-kd * t_abs * x\"\n"
+                        "      parameters:\n        kd: {unit: \"N/(m s)\", min: -1e9, max: 1e9, default: 0, null: 0}\n";
+  const std::string base = (dir / "rec").string();
+  using ridgewatch::test::run_cli;
+  auto r = run_cli({"simulate", "--rig", rig, "--effect", "stiffness_drift:kd=1.6e7", "--noise", "0.01", "--duration", "0.5",
+                    "--rate", "25600", "--out", base});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  r = run_cli({"compare", "--rig", rig, base + ".wav", "--with", "stiffness_drift:kd=1.6e7!", "--json"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("\"fixed_parameters\":{\"stiffness_drift.kd\":16000000.0}"), std::string::npos) << r.out;
+  EXPECT_EQ(r.out.find("\"name\":\"stiffness_drift.kd\""), std::string::npos);  // not among the fitted
+  r = run_cli({"compare", "--rig", rig, base + ".wav", "--with", "stiffness_drift:k=1"});
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("'k' is not a fitted parameter (fitted: kd)"), std::string::npos) << r.err;
+  r = run_cli({"compare", "--rig", rig, base + ".wav", "--with", "stiffness_drift:kd=x!"});
+  EXPECT_EQ(r.exit_code, 2);
+  EXPECT_NE(r.err.find("kd: 'x' is not a number"), std::string::npos) << r.err;
+  r = run_cli({"diagnose", "--rig", rig, base + ".wav", "--with", "stiffness_drift", "--max-impacts", "4"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.err.find("diagnose: ["), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("round 1: fitting coulomb_friction"), std::string::npos) << r.err;
+  EXPECT_NE(r.out.find("model [stiffness_drift]"), std::string::npos) << r.out;
+#ifndef RIDGEWATCH_SANITIZED  // the same run again, only the flag differs
+  r = run_cli({"diagnose", "--rig", rig, base + ".wav", "--with", "stiffness_drift", "--max-impacts", "4", "--quiet"});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(r.err.find("diagnose: ["), std::string::npos) << r.err;
+#endif
+  std::filesystem::remove_all(dir);
+}
+
+}  // namespace
