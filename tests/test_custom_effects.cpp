@@ -252,3 +252,43 @@ TEST(CustomEffects, CliSimulateCompareWithFixedValueAndDiagnoseProgress) {
 }
 
 }  // namespace
+
+namespace {
+
+TEST(CustomEffects, DuplicateOfACatalogueEffectFitsTheSameParameters) {
+  // quadratic_damping (2e6 N s²/m², the README sweep's size) hidden; the fit with the catalogue
+  // effect and the fit with the same force as an expression must agree: each value inside the
+  // other's 95 % interval (they differ only in the log range's lower end and the start).
+  rm::CustomEffectDefinition def;
+  def.name = "squeeze";
+  def.force = "-d2 * v * abs(v)";
+  def.parameters = {{"d2", "N s^2/m^2", 0.0, 1e9, 0.0, 0.0, ""}};
+  rm::set_user_effects({{rm::make_custom_effect(def), {}}});
+  rm::RigParameters rig;
+  rig.crack_angle_rad = 1.0;
+  rm::SimulationSettings s;
+  s.sample_rate_hz = 25600.0;
+  s.duration_s = 0.5;
+  s.seed = 2;
+  const auto sim = rm::simulate(rig, {{"quadratic_damping", {{"coefficient_n_s2_per_m2", 2e6}}}, {"noise", {{"std_rel", 0.01}}}}, s);
+  const auto seg = rd::subset_windows(rd::segment_recording(sim.output, s.sample_rate_hz, rig), 8);
+  ASSERT_GE(seg.windows.size(), 8u);
+  const rd::ModelFitter fitter(sim.output, seg, rig);
+  const rd::FitResult a = fitter.fit({"quadratic_damping"});
+  const rd::FitResult b = fitter.fit({"squeeze"});
+  auto find = [](const rd::FitResult& f, const std::string& n) {
+    for (const auto& e : f.estimates)
+      if (e.name == n) return e;
+    ADD_FAILURE() << n;
+    return rd::ParameterEstimate{};
+  };
+  const auto qa = find(a, "quadratic_damping.coefficient_n_s2_per_m2"), qb = find(b, "squeeze.d2");
+  EXPECT_GE(qa.value, qb.ci95_lo);
+  EXPECT_LE(qa.value, qb.ci95_hi);
+  EXPECT_GE(qb.value, qa.ci95_lo);
+  EXPECT_LE(qb.value, qa.ci95_hi);
+  EXPECT_NEAR(a.heldout_excess, b.heldout_excess, 0.01);  // same model: same held-out error
+  rm::set_user_effects({});
+}
+
+}  // namespace
