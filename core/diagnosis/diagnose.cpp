@@ -13,8 +13,6 @@ namespace ridgewatch::diagnosis {
 
 namespace {
 
-bool find_catalogue_effect_name(const std::string& name) { return model::find_catalogue_effect(name) != nullptr; }
-
 const ParameterEstimate* find_estimate(const FitResult& f, const std::string& name) {
   for (const auto& e : f.estimates)
     if (e.name == name) return &e;
@@ -127,8 +125,8 @@ std::string evidence(const std::string& effect, const FitResult& fit, const Resi
     else o << "a decaying residual line away from f0: a second mode";
   } else if (effect == "damping_drift") {
     o << "the damping ratio changes along the record while each impact fits on its own";
-  } else if (const model::EffectDescriptor* d = model::find_effect(effect); d != nullptr && find_catalogue_effect_name(effect) == false) {
-    o << d->explanation;
+  } else if (const model::EffectDescriptor* d = model::find_effect(effect); d != nullptr && !model::find_catalogue_effect(effect)) {
+    o << d->explanation;  // a user-defined effect: its expression
   }
   o << ". Fitted:";
   for (const auto& e : fit.estimates)

@@ -1,6 +1,7 @@
 // The missing-effect loop (issue 5 "diagnose"): starting from a model, refit with every diagnosable
-// catalogue effect not yet in it, judge each on the held-out impacts, accept the best one that passes
-// the gate, repeat until none passes. Pure computation.
+// catalogue effect not yet in it (and every user-defined effect of the rig file, impact_model.hpp),
+// judge each on the held-out impacts, accept the best one that passes the gate, repeat until none
+// passes. Pure computation.
 //
 // Gate (all required; DESIGN.md "Model-discrepancy loop"):
 //  1. clear held-out gain: excess_before - excess_after > 3 sqrt(2 / n_held) (1 + excess_after), three
