@@ -129,7 +129,12 @@ const std::vector<CandidateSpec>& user_candidates() {
   thread_local std::uint64_t generation = ~std::uint64_t{0};
   if (generation != model::user_effects_generation()) {
     cache.clear();
-    for (const auto& u : model::user_effects()) cache.push_back(user_candidate(u));
+    // One with nothing to fit (no parameter, or every range a single value) is no candidate: the
+    // fitted model is built from the fitted parameters' effects, and a fixed force is for simulate.
+    for (const auto& u : model::user_effects()) {
+      CandidateSpec c = user_candidate(u);
+      if (!c.free.empty()) cache.push_back(std::move(c));
+    }
     generation = model::user_effects_generation();
   }
   return cache;
