@@ -13,7 +13,7 @@ const Flag kFormat{"--format", "json|table",
                    "json (default; compare/diagnose: text) or table: aligned columns, 4 significant digits",
                    true};
 const Flag kRig{"--rig", "RIG.yaml", "rig file (config/rigs/, /usr/share/ridgewatch/rigs/); required", false, true};
-const Flag kWith{"--with", "EFFECT", "add a catalogue effect to the rig model (repeatable)"};
+const Flag kWith{"--with", "EFFECT[:k=v[!],...]", "add a catalogue or rig-file (custom_effects) effect to the model; k=v starts a parameter, k=v! fixes it (repeatable)"};
 const Flag kJson{"--json", "", "print the result as one JSON object instead of text (same as --format json)"};
 const Flag kPlots{"--plots", "DIR", "also write SVG plots and DIR/index.html (DIR is created)"};
 
@@ -98,7 +98,7 @@ std::vector<Command> make_commands() {
        {}},
       {"diagnose",
        "FILE",
-       "find the missing model effect: try each catalogue effect, accept those that pass the gate",
+       "find the missing model effect: try each catalogue and rig-file effect, accept those that pass the gate",
        {
            kRig,
            kWith,
@@ -107,6 +107,7 @@ std::vector<Command> make_commands() {
            kJson,
            {"--history", "H.jsonl", "append this run to a history file (plotted by --plots)"},
            {"--max-impacts", "N", "impacts used, 4-100000 (default 16: 8 fitted, 8 held out)"},
+           {"--quiet", "", "no progress lines on stderr"},
            kPlots,
            kFormat,
        },
