@@ -65,8 +65,9 @@ int run_compare(const std::vector<std::string>& argv, std::ostream& out, std::os
   diag::Loaded l = diag::load(args);
   std::optional<std::filesystem::path> plot_dir;  // made (or refused) before the fit
   if (const auto d = args.value("--plots")) plot_dir = plots::prepare_dir(*d);
-  const diagnosis::ModelFitter fitter(l.y, l.seg, l.rig.rig);
-  const diagnosis::FitResult fit = fitter.fit(l.effects);
+  diagnosis::ModelFitter fitter(l.y, l.seg, l.rig.rig);
+  diag::apply_settings(fitter, l);
+  const diagnosis::FitResult fit = diag::guard_user_effects(*args.value("--rig"), [&] { return fitter.fit(l.effects); });
   const diagnosis::ResidualReport rep = diagnosis::analyse_residual(fitter, fit);
   const double c0_nom = l.rig.rig.mean_mesh_stiffness_n_per_m;
   const auto& c0 = fit.estimates[0];
@@ -86,6 +87,10 @@ int run_compare(const std::vector<std::string>& argv, std::ostream& out, std::os
     nlohmann::json params = nlohmann::json::array();
     for (const auto& e : fit.estimates) params.push_back(diag::estimate_json(e));
     j["parameters"] = params;
+    nlohmann::json fixed = nlohmann::json::object();  // --with NAME:key=value! (not fitted)
+    for (const auto& [name, st] : l.settings)
+      if (st.fixed) fixed[name] = st.value;
+    j["fixed_parameters"] = fixed;
     nlohmann::json corr = nlohmann::json::array();
     for (Eigen::Index r = 0; r < fit.correlation.rows(); ++r) {
       nlohmann::json row = nlohmann::json::array();

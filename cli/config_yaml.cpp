@@ -1,12 +1,14 @@
 #include "cli/config_yaml.hpp"
 
 #include <cmath>
+#include <filesystem>
 #include <fstream>
 #include <functional>
 #include <set>
 #include <sstream>
 #include <stdexcept>
 
+#include "cli/rig_defaults.hpp"
 #include "cli/yaml_reader.hpp"
 
 namespace ridgewatch::cli {
@@ -17,9 +19,16 @@ namespace {
 // drift apart. Range checks live in the components' validate() functions and in check_sources().
 template <typename V>
 void walk(RidgewatchConfig& c, V& v) {
+  v.text("rig", c.rig);
   v.map("source", [&] {
     v.text("type", c.source.type);
     v.num("ring_buffer_s", c.source.ring_buffer_s);
+    v.map("combine", [&] {
+      v.text("type", c.source.combine.type);
+      v.indices("channels", c.source.combine.channels, 1023);
+      v.numbers("coefficients", c.source.combine.coefficients);
+      v.numbers("sensitivity", c.source.combine.sensitivity);
+    });
     v.map("replay", [&] {
       v.text("path", c.source.replay.path);
       v.count("channel", c.source.replay.channel, 0, 1023);
@@ -187,6 +196,31 @@ class Parser {
         r_.fail(YamlReader::join(path, key), "must be one of two-point, ridge-ls, ml (got '" + text + "')");
     });
   }
+  /// A flow or block sequence of numbers.
+  void numbers(const char* key, std::vector<double>& v) {
+    visit(key, [&](const YAML::Node& p, const std::string& path) {
+      const YAML::Node n = p[key];
+      if (!n || n.IsNull()) return;
+      const std::string where = YamlReader::join(path, key);
+      if (!n.IsSequence()) r_.fail(where, "must be a list of numbers, e.g. [1, 0.5]");
+      v.clear();
+      for (std::size_t i = 0; i < n.size(); ++i) v.push_back(r_.number(n[i], where + "[" + std::to_string(i) + "]"));
+    });
+  }
+  /// A sequence of whole numbers in [0, hi] (channel indices).
+  void indices(const char* key, std::vector<std::size_t>& v, std::size_t hi) {
+    std::vector<double> x;
+    numbers(key, x);
+    if (collecting_ || x.empty()) return;
+    const std::string where = YamlReader::join(stack_.back().path, key);
+    v.clear();
+    for (std::size_t i = 0; i < x.size(); ++i) {
+      if (x[i] != std::floor(x[i]) || x[i] < 0 || x[i] > static_cast<double>(hi))
+        r_.fail(where + "[" + std::to_string(i) + "]",
+                "must be a whole number in [0, " + std::to_string(hi) + "] (got " + YamlReader::format(x[i]) + ")");
+      v.push_back(static_cast<std::size_t>(x[i]));
+    }
+  }
   /// An old spelling: read like text() (overriding the new key only when given), never printed.
   void legacy_text(const char* key, std::string& v) {
     visit(key, [&](const YAML::Node& p, const std::string& path) {
@@ -198,6 +232,7 @@ class Parser {
     });
   }
   void check_top() { r_.check_map(stack_.front().node, "", known_.front()); }
+  const std::set<std::string>& given() const { return given_; }
 
  private:
   struct Frame {
@@ -210,6 +245,7 @@ class Parser {
     known_.back().insert(key);
     if (collecting_) return;
     const Frame& f = stack_.back();
+    if (f.node.IsMap() && f.node[key]) given_.insert(YamlReader::join(f.path, key));
     read(f.node, f.path);
   }
   void collect_only(const std::function<void()>& body) {
@@ -228,6 +264,7 @@ class Parser {
   std::vector<Frame> stack_;
   std::vector<std::set<std::string>> known_{1};
   bool collecting_ = false;
+  std::set<std::string> given_;
 };
 
 // Printer: writes the current values in the same layout.
@@ -252,6 +289,16 @@ class Printer {
   void count(const char* key, Int v, long long, long long) { line(key, std::to_string(v)); }
   void method(const char* key, dsp::DampingMethod m) { line(key, std::string(dsp::to_string(m))); }
   void legacy_text(const char*, const std::string&) {}
+  void numbers(const char* key, const std::vector<double>& v) {
+    std::string t = "[";
+    for (std::size_t i = 0; i < v.size(); ++i) t += (i ? ", " : "") + YamlReader::format(v[i]);
+    line(key, t + "]");
+  }
+  void indices(const char* key, const std::vector<std::size_t>& v, std::size_t) {
+    std::string t = "[";
+    for (std::size_t i = 0; i < v.size(); ++i) t += (i ? ", " : "") + std::to_string(v[i]);
+    line(key, t + "]");
+  }
   std::string str() const { return out_.str(); }
 
  private:
@@ -281,6 +328,7 @@ void check_values(const YamlReader& r, const RidgewatchConfig& c) {
     r.fail("source.alsa.buffer_frames", "must be at least 2 x source.alsa.period_frames");
   if (!(s.alsa.retry_min_s > 0 && s.alsa.retry_max_s >= s.alsa.retry_min_s && s.alsa.retry_max_s <= 3600))
     r.fail("source.alsa.retry_min_s", "need 0 < retry_min_s <= retry_max_s <= 3600 s");
+  combine_gains(c, r.name(), s.type == "alsa" ? s.alsa.channels : 0, false);
   if (c.output.events.empty()) r.fail("output.events", "must be a path or - (standard output)");
   if (const auto& sel = c.output.capture.select; sel != "all" && sel != "not_ok" && sel != "alarm")
     r.fail("output.capture.select", "must be all, not_ok or alarm (got '" + sel + "')");
@@ -329,6 +377,58 @@ void check_values(const YamlReader& r, const RidgewatchConfig& c) {
 
 }  // namespace
 
+std::vector<double> combine_gains(const RidgewatchConfig& c, const std::string& name, std::size_t available,
+                                  bool need_rig) {
+  const CombineConfig& k = c.source.combine;
+  auto fail = [&](const std::string& key, const std::string& what) {
+    throw UsageError(name + ": source.combine." + key + ": " + what);
+  };
+  const std::size_t n = k.channels.size();
+  if (k.type == "none") {
+    if (n || !k.coefficients.empty() || !k.sensitivity.empty())
+      fail("type", "is none, but channels/coefficients/sensitivity are given (set type: mesh_velocity or coefficients)");
+    return {};
+  }
+  if (k.type != "mesh_velocity" && k.type != "coefficients")
+    fail("type", "must be none, mesh_velocity or coefficients (got '" + k.type + "')");
+  if (n == 0) fail("channels", "must list the input channels combined (e.g. [0, 1])");
+  for (std::size_t i = 0; i < n; ++i) {
+    for (std::size_t j = 0; j < i; ++j)
+      if (k.channels[j] == k.channels[i])
+        fail("channels", "channel " + std::to_string(k.channels[i]) + " is listed twice");
+    if (available > 0 && k.channels[i] >= available)
+      fail("channels[" + std::to_string(i) + "]",
+           "channel " + std::to_string(k.channels[i]) + " out of range (the source has " + std::to_string(available) +
+               " channels, 0-" + std::to_string(available - 1) + ")");
+  }
+  if (!k.sensitivity.empty() && k.sensitivity.size() != n)
+    fail("sensitivity",
+         "needs one value per channel (" + std::to_string(n) + "), got " + std::to_string(k.sensitivity.size()));
+  for (std::size_t i = 0; i < k.sensitivity.size(); ++i)
+    if (!(k.sensitivity[i] > 0)) fail("sensitivity[" + std::to_string(i) + "]", "must be > 0");
+  std::vector<double> coef;
+  if (k.type == "mesh_velocity") {
+    if (n != 2)
+      fail("channels", "mesh_velocity needs exactly two channels, [φ̇1 of the pinion, φ̇2 of the wheel] (got " +
+                           std::to_string(n) + ")");
+    if (!k.coefficients.empty()) fail("coefficients", "are taken from the rig file for mesh_velocity; leave them out");
+    if (c.rig_model.path.empty()) {
+      if (need_rig) fail("type", "mesh_velocity needs the rig file (key rig, or --rig) for the base radii rb1, rb2");
+      coef = {0.0, 0.0};
+    } else {
+      coef = {c.rig_model.rb1_m, c.rig_model.rb2_m};  // q̇ = r_b1 φ̇1 + r_b2 φ̇2, paper Appendix A
+    }
+  } else {
+    if (k.coefficients.size() != n)
+      fail("coefficients",
+           "needs one value per channel (" + std::to_string(n) + "), got " + std::to_string(k.coefficients.size()));
+    coef = k.coefficients;
+  }
+  for (std::size_t i = 0; i < n; ++i)
+    if (!k.sensitivity.empty()) coef[i] /= k.sensitivity[i];
+  return coef;
+}
+
 RidgewatchConfig default_config() {
   RidgewatchConfig c;
   c.pipeline.analyzer.clip_level = NAN;  // from the source's format when it opens
@@ -351,6 +451,13 @@ RidgewatchConfig parse_config_unguarded(const std::string& text, const std::stri
   Parser p(r, root);
   walk(c, p);
   p.check_top();
+  c.given = p.given();
+  if (!c.rig.empty()) {
+    // Relative to the configuration file's directory, like any path a deployment ships beside it.
+    std::filesystem::path rig(c.rig);
+    if (rig.is_relative()) rig = std::filesystem::path(name).parent_path() / rig;
+    apply_rig_defaults(c, rig.string(), name + ": rig");
+  }
   check_values(r, c);
   return c;
 }

@@ -7,7 +7,9 @@
 
 #include <cstdint>
 #include <optional>
+#include <set>
 #include <string>
+#include <vector>
 
 #include "core/pipeline/stream_processor.hpp"
 
@@ -33,8 +35,21 @@ struct AlsaSourceConfig {
   double retry_max_s = 30.0;      ///< up to this
 };
 
+/// source.combine: the stream analysed is a linear combination of input channels (a derived channel),
+/// y = sum_i c_i x_i / s_i with s_i the channel's sensitivity (input units per physical unit).
+struct CombineConfig {
+  /// none (one channel: source.replay.channel / source.alsa.channel), mesh_velocity (q̇ = r_b1 φ̇1 +
+  /// r_b2 φ̇2, paper Appendix A; c = rb1, rb2 of the `rig` file; channels φ̇1, φ̇2 in rad/s after the
+  /// sensitivity; y in m/s) or coefficients (c from `coefficients`).
+  std::string type = "none";
+  std::vector<std::size_t> channels;  ///< 0-based input channels
+  std::vector<double> coefficients;   ///< type coefficients: one per channel
+  std::vector<double> sensitivity;    ///< one per channel (input units per rad/s or per unit), > 0; [] = all 1
+};
+
 struct SourceConfig {
   std::string type = "replay";  ///< replay or alsa
+  CombineConfig combine;
   ReplaySourceConfig replay;
   AlsaSourceConfig alsa;
   double ring_buffer_s = 4.0;   ///< acquisition ring buffer length (rounded up to a power of two samples)
@@ -97,7 +112,28 @@ struct LoggingConfig {
   double status_interval_s = 10.0;  ///< systemd STATUS= and log status line period
 };
 
+/// What the rig file (key `rig`) supplied, filled by apply_rig_defaults (cli/rig_defaults.hpp).
+struct RigModelInfo {
+  std::string path;            ///< rig file as resolved; empty: no rig
+  double f_d_hz = 0;           ///< model damped natural frequency, Hz
+  double mesh_hz = 0;          ///< model mesh frequency, Hz
+  double rb1_m = 0, rb2_m = 0; ///< base radii (source.combine mesh_velocity), m
+  bool f_expected = false;     ///< pipeline.analyzer.f_expected_hz came from the rig
+  bool band = false;           ///< pipeline.detector.band_lo_hz/band_hi_hz came from the rig
+  std::string note;            ///< warning about the rig's band, or empty
+  /// Warning when rb1/rb2 disagrees with z1/z2 by more than 5 % (base radii of meshing gears are in
+  /// the ratio of their teeth, r_b = m z cos α / 2): a wrong radius mixes the shafts' common rotation
+  /// into q̇ = r_b1 φ̇1 + r_b2 φ̇2 (source.combine mesh_velocity). Empty when they agree.
+  std::string radius_note;
+};
+
 struct RidgewatchConfig {
+  /// Rig description (config/rigs/*.yaml) whose model supplies f_expected_hz and the detector band
+  /// when the file does not give them; "" = none. Relative to the configuration file's directory.
+  std::string rig;
+  RigModelInfo rig_model;
+  /// YAML paths the file gave explicitly ("pipeline.analyzer.f_expected_hz"), filled by the parser.
+  std::set<std::string> given;
   SourceConfig source;
   pipeline::PipelineConfig pipeline;  ///< sample_rate_hz comes from the source, not from the file
   OutputConfig output;
@@ -108,6 +144,13 @@ struct RidgewatchConfig {
 
 /// Defaults of every key (pipeline.analyzer.clip_level: null, i.e. from the source's format).
 RidgewatchConfig default_config();
+/// The gains of source.combine (c_i / s_i, one per channel), checked: UsageError naming the key for a
+/// missing rig (mesh_velocity), a wrong coefficient or sensitivity count, or `channels` outside
+/// [0, channels_available) when that is known (> 0). `name`: the configuration file, for messages.
+/// need_rig false: the checks that do not need the rig (the configuration loader; `analyze --rig` may
+/// supply the rig later), gains then 0 for mesh_velocity without a rig.
+std::vector<double> combine_gains(const RidgewatchConfig& config, const std::string& name,
+                                  std::size_t channels_available = 0, bool need_rig = true);
 /// Keys whose default depends on the source's sample format, once the source is open: a clip_level of
 /// null (NaN) becomes 0.999 x the format's full scale for integer PCM (SourceInfo::full_scale) and
 /// stays NaN (no clipping check) for float data in physical units.

@@ -1,11 +1,14 @@
-// `ridgewatch diagnose --rig RIG.yaml FILE [--with EFFECT]... [--json] [--history FILE.jsonl] [--plots DIR]`: the
+// `ridgewatch diagnose --rig RIG.yaml FILE [--with EFFECT[:key=value[!],...]]... [--json] [--quiet]
+// [--history FILE.jsonl] [--plots DIR]`: the
 // missing-effect loop (core/diagnosis/diagnose.hpp). Text by default, one JSON object with --json.
 // --history appends one JSON line per run (time of run is not recorded: the line is a function of the
 // inputs) with the file, model, verdict and excess before/after, so repeated runs on the same data
 // form the "watch the error fall" table. --max-impacts N (default 16): runs of 4 consecutive impacts
 // spread over the record. --plots DIR also writes SVG plots of the final model, the residual spectrum
 // per round, the candidate ladder and the error per round (and per --history run), gathered by
-// DIR/index.html (cli/plot_diagnosis.hpp).
+// DIR/index.html (cli/plot_diagnosis.hpp). --with NAME:key=value starts a parameter there, key=value!
+// fixes it. Progress lines go to stderr unless --quiet.
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -27,15 +30,26 @@ std::string g(double v, int d = 3) { return diagnosis::format_number(v, d); }
 }  // namespace
 
 int run_diagnose(const std::vector<std::string>& argv, std::ostream& out, std::ostream& err) {
-  const Args args(argv, {"--rig", "--with", "--channel", "--rate", "--history", "--max-impacts", "--plots"}, {"--json"});
+  const Args args(argv, {"--rig", "--with", "--channel", "--rate", "--history", "--max-impacts", "--plots"}, {"--json", "--quiet"});
   diag::Loaded l = diag::load(args);
   std::optional<std::filesystem::path> plot_dir;  // made (or refused) before the fits
   if (const auto d = args.value("--plots")) plot_dir = plots::prepare_dir(*d);
   // Default 16 impacts (8 fitted, 8 held out, as the prototype of DESIGN.md): each candidate refit
   // costs ~0.1-1 s per 16 impacts; more impacts sharpen the gate but cost linearly.
   l.seg = diagnosis::subset_windows(l.seg, static_cast<std::size_t>(args.integer("--max-impacts", 16, 4, 100000)));
-  const diagnosis::ModelFitter fitter(l.y, l.seg, l.rig.rig);
-  const diagnosis::DiagnoseResult r = diagnosis::diagnose(fitter, l.effects);
+  diagnosis::ModelFitter fitter(l.y, l.seg, l.rig.rig);
+  diag::apply_settings(fitter, l);
+  diagnosis::DiagnoseOptions options;
+  // Progress on stderr, one line per candidate fit and per round, with the elapsed time (a run takes
+  // seconds to minutes); --quiet turns it off. Time is measured here, not in core.
+  const auto started = std::chrono::steady_clock::now();
+  if (!args.has("--quiet"))
+    options.progress = [&err, started](const std::string& line) {
+      const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - started).count();
+      err << "diagnose: [" << g(s, 3) << " s] " << line << "\n" << std::flush;
+    };
+  const diagnosis::DiagnoseResult r =
+      diag::guard_user_effects(*args.value("--rig"), [&] { return diagnosis::diagnose(fitter, l.effects, options); });
 
   nlohmann::json steps = nlohmann::json::array();
   for (const auto& s : r.steps) {

@@ -3,6 +3,9 @@
 #pragma once
 
 #include <nlohmann/json.hpp>
+#include <cmath>
+#include <cstdlib>
+#include <map>
 #include <string>
 #include <vector>
 
@@ -17,6 +20,8 @@ namespace ridgewatch::cli::diag {
 struct Loaded {
   RigConfig rig;
   std::vector<std::string> effects;  ///< model effects: rig model.effects (diagnosable ones) + --with
+  /// --with NAME:key=value (a start) and key=value! (fixed), by "<effect>.<key>".
+  std::map<std::string, diagnosis::ModelFitter::ParameterSetting> settings;
   std::vector<std::string> ignored;  ///< rig model.effects that are not fitted (sensor/kinematics)
   std::string path;
   std::vector<double> y;
@@ -33,11 +38,39 @@ inline Loaded load(const Args& args) {
     if (diagnosis::find_candidate(e.name)) l.effects.push_back(e.name);
     else l.ignored.push_back(e.name);
   }
-  for (const auto& name : args.values("--with")) {
+  for (const auto& text : args.values("--with")) {
+    // NAME or NAME:key=value,key=value! ('!' fixes the value; without it the value is the start).
+    const auto colon = text.find(':');
+    const std::string name = text.substr(0, colon);
     if (!diagnosis::find_candidate(name)) {
       std::string known;
-      for (const auto& c : diagnosis::candidate_table()) known += (known.empty() ? "" : ", ") + c.effect;
+      for (const auto& c : diagnosis::candidate_names()) known += (known.empty() ? "" : ", ") + c;
       throw UsageError("--with: '" + name + "' is not a model effect that can be fitted (known: " + known + ")");
+    }
+    if (colon != std::string::npos) {
+      const std::string rest = text.substr(colon + 1);
+      std::size_t pos = 0;
+      while (true) {
+        const auto comma = rest.find(',', pos);
+        std::string item = rest.substr(pos, comma == std::string::npos ? std::string::npos : comma - pos);
+        const auto eq = item.find('=');
+        if (eq == std::string::npos || eq == 0)
+          throw UsageError("--with " + name + ": '" + item + "' is not key=value (or key=value! to fix it)");
+        diagnosis::ModelFitter::ParameterSetting setting;
+        std::string value = item.substr(eq + 1);
+        if (!value.empty() && value.back() == '!') {
+          setting.fixed = true;
+          value.pop_back();
+        }
+        char* end = nullptr;
+        setting.value = std::strtod(value.c_str(), &end);
+        if (value.empty() || end != value.c_str() + value.size() || !std::isfinite(setting.value))
+          throw UsageError("--with " + name + ": " + item.substr(0, eq) + ": '" + value + "' is not a number");
+        if (!l.settings.emplace(name + "." + item.substr(0, eq), setting).second)
+          throw UsageError("--with " + name + ": " + item.substr(0, eq) + " given twice");
+        if (comma == std::string::npos) break;
+        pos = comma + 1;
+      }
     }
     if (std::find(l.effects.begin(), l.effects.end(), name) == l.effects.end()) l.effects.push_back(name);
   }
@@ -53,6 +86,26 @@ inline Loaded load(const Args& args) {
     throw drivers::InputError(l.path + ": found " + std::to_string(l.seg.windows.size()) +
                               " usable impacts; compare/diagnose need at least 4 (2 to fit, 2 to hold out)");
   return l;
+}
+
+/// Applies --with's parameter values to a fitter (exit 2 naming the flag when one does not fit).
+inline void apply_settings(diagnosis::ModelFitter& fitter, const Loaded& l) {
+  try {
+    fitter.set_parameter_settings(l.settings);
+  } catch (const std::invalid_argument& e) {
+    throw UsageError(std::string("--with: ") + e.what());
+  }
+}
+
+/// Runs a fit (or the diagnose loop); a user-defined effect whose force turns non-finite during the
+/// fit stops the command with exit 2 naming the rig file (the model, not the data, is at fault).
+template <class F>
+auto guard_user_effects(const std::string& rig_path, F&& f) {
+  try {
+    return f();
+  } catch (const std::domain_error& e) {
+    throw UsageError(rig_path + ": " + e.what());
+  }
 }
 
 inline nlohmann::json estimate_json(const diagnosis::ParameterEstimate& e) {

@@ -62,15 +62,16 @@ void put_key(std::string& out, std::string_view key) {
 
 }  // namespace
 
-std::string event_json(const pipeline::ImpactEvent& e, std::string_view source, std::string_view wall_time) {
+std::string event_json(const pipeline::ImpactEvent& e, std::string_view source, std::string_view wall_time,
+                       std::string_view stream) {
   std::string out;
   out.reserve(512 + source.size());
-  append_event_json(out, e, source, wall_time);
+  append_event_json(out, e, source, wall_time, stream);
   return out;
 }
 
 void append_event_json(std::string& out, const pipeline::ImpactEvent& e, std::string_view source,
-                       std::string_view wall_time) {
+                       std::string_view wall_time, std::string_view stream) {
   out += '{';
   put_key(out, "t_s");
   put_number(out, e.t_s);
@@ -82,6 +83,11 @@ void append_event_json(std::string& out, const pipeline::ImpactEvent& e, std::st
   out += ',';
   put_key(out, "source");
   put_string(out, source);
+  if (!stream.empty()) {
+    out += ',';
+    put_key(out, "stream");
+    put_string(out, stream);
+  }
   if (!wall_time.empty()) {
     out += ',';
     put_key(out, "wall_time");

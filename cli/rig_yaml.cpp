@@ -4,12 +4,14 @@
 
 #include <cmath>
 #include <fstream>
+#include <map>
 #include <set>
 #include <sstream>
 #include <stdexcept>
 
 #include "cli/args.hpp"
 #include "cli/yaml_reader.hpp"
+#include "core/model/custom_effect.hpp"
 #include "core/model/effect_registry.hpp"
 
 namespace ridgewatch::cli {
@@ -44,6 +46,62 @@ model::EffectSpec read_effect(const Reader& r, const YAML::Node& node, const std
     r.fail(path, e.what());
   }
   return spec;
+}
+
+/// model.custom_effects[k]: {name, force, parameters: {key: {unit, min, max, default, null, start}}}.
+model::UserEffect read_custom_effect(const Reader& r, const YAML::Node& node, const std::string& path) {
+  if (!node.IsMap()) r.fail(path, "must be a mapping with name, force and parameters");
+  r.check_map(node, path, {"name", "force", "parameters"});
+  model::CustomEffectDefinition def;
+  for (const char* key : {"name", "force"}) {
+    if (!node[key]) r.fail(path + "." + key, "missing (required)");
+    if (!node[key].IsScalar()) r.fail(path + "." + key, "must be a string");
+  }
+  def.name = node["name"].Scalar();
+  def.force = node["force"].Scalar();
+  if (const YAML::Node params = node["parameters"]) {
+    if (!params.IsMap()) r.fail(path + ".parameters", "must be a mapping of parameter name to {unit, min, max, default, null, start}");
+    for (const auto& kv : params) {
+      model::EffectParameter p;
+      p.key = kv.first.as<std::string>();
+      const std::string ppath = path + ".parameters." + p.key;
+      const YAML::Node v = kv.second;
+      // Keys read by hand: YAML reads the key `null` (the spelling of the null value) as a
+      // null node, not as the string "null".
+      if (!v.IsMap()) r.fail(ppath, "must be a mapping {unit, min, max, default, null, start}");
+      std::map<std::string, YAML::Node> keys;
+      for (const auto& q : v) {
+        std::string key;
+        if (q.first.IsNull()) key = "null";
+        else if (q.first.IsScalar()) key = q.first.Scalar();
+        else r.fail(ppath, "keys must be plain names");
+        static const std::set<std::string> allowed = {"unit", "min", "max", "default", "null", "start", "description"};
+        if (!allowed.count(key))
+          r.fail(ppath + "." + key, "unknown key (known: default, description, max, min, null, start, unit)");
+        keys[key] = q.second;
+      }
+      if (keys.count("unit")) {
+        if (!keys["unit"].IsScalar()) r.fail(ppath + ".unit", "must be a string");
+        p.unit = keys["unit"].Scalar();
+      } else {
+        p.unit = "1";
+      }
+      for (const char* key : {"min", "max", "default"})
+        if (!keys.count(key)) r.fail(ppath + "." + key, "missing (required)");
+      p.min_value = r.number(keys["min"], ppath + ".min");
+      p.max_value = r.number(keys["max"], ppath + ".max");
+      p.default_value = r.number(keys["default"], ppath + ".default");
+      if (keys.count("null")) p.null_value = r.number(keys["null"], ppath + ".null");
+      if (keys.count("start")) def.starts[p.key] = r.number(keys["start"], ppath + ".start");
+      if (keys.count("description") && keys["description"].IsScalar()) p.description = keys["description"].Scalar();
+      def.parameters.push_back(p);
+    }
+  }
+  try {
+    return {model::make_custom_effect(def), def.starts};
+  } catch (const model::CustomEffectError& e) {
+    r.fail(path, e.what());
+  }
 }
 
 }  // namespace
@@ -127,8 +185,21 @@ RigConfig parse_rig_yaml_unguarded(const std::string& text, const std::string& n
     rig.sensor_sensitivity = r.optional(sensor, "sensor", "sensitivity", "positive", rig.sensor_sensitivity);
   }
 
+  // The rig file defines the user effects of the command that loads it (none when it has none).
+  model::set_user_effects({});
   if (const YAML::Node m = root["model"]) {
-    r.check_map(m, "model", {"effects"});
+    r.check_map(m, "model", {"effects", "custom_effects"});
+    if (const YAML::Node custom = m["custom_effects"]) {
+      if (!custom.IsSequence()) r.fail("model.custom_effects", "must be a list");
+      std::set<std::string> names;
+      for (std::size_t k = 0; k < custom.size(); ++k) {
+        const std::string path = "model.custom_effects[" + std::to_string(k) + "]";
+        cfg.custom_effects.push_back(read_custom_effect(r, custom[k], path));
+        if (!names.insert(cfg.custom_effects.back().descriptor.name).second)
+          r.fail(path, "effect " + cfg.custom_effects.back().descriptor.name + " defined twice");
+      }
+      model::set_user_effects(cfg.custom_effects);
+    }
     if (const YAML::Node effects = m["effects"]) {
       if (!effects.IsSequence()) r.fail("model.effects", "must be a list");
       std::set<std::string> names;

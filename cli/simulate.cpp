@@ -1,5 +1,6 @@
 // `ridgewatch simulate`: runs the gear-pair model (core/model/simulator.hpp) for a rig file and writes
-// BASE.wav (float32; channel 1 the sensor, optional channel 2 a once-per-revolution tacho pulse) and
+// BASE.wav (float32; channel 1 the sensor, optional channel 2 a once-per-revolution tacho pulse, or
+// with --channels vib,shafts channels 2 and 3 the shaft speeds φ̇1, φ̇2 in rad/s, see shaft_split) and
 // BASE.truth.json (every parameter, the effects and their values, each impact, true ζ and f0 over
 // time). Same arguments and seed -> the same bytes.
 #include <charconv>
@@ -71,15 +72,30 @@ void write_catalogue(std::ostream& out) {
   out << "\n]}\n";
 }
 
+/// The shaft speeds behind q̇ (paper Appendix A, Eq. A1): with the shaft torques constant, only the mesh
+/// force F oscillates, J1 φ̈1 = -r_b1 F and J2 φ̈2 = -r_b2 F, so the oscillating speeds are in the fixed
+/// ratio φ̇1 : φ̇2 = r_b1/J1 : r_b2/J2 and q̇ = r_b1 φ̇1 + r_b2 φ̇2 gives
+///   φ̇1 = q̇ m_red r_b1 / J1,   φ̇2 = q̇ m_red r_b2 / J2,   m_red = 1 / (r_b1²/J1 + r_b2²/J2).
+/// Split from the sensor output (q̇ times sensor.sensitivity, noise included), in rad/s.
+struct ShaftSplit {
+  double k1 = 0, k2 = 0;  ///< φ̇1 = k1 y, φ̇2 = k2 y, y the sensor output
+};
+ShaftSplit shaft_split(const model::RigParameters& rig) {
+  const double m = rig.reduced_mass_kg();
+  return {m * rig.pinion_base_radius_m / rig.pinion_inertia_kg_m2 / rig.sensor_sensitivity,
+          m * rig.wheel_base_radius_m / rig.wheel_inertia_kg_m2 / rig.sensor_sensitivity};
+}
+
 void write_truth(const std::string& path, const std::string& rig_file, const model::RigParameters& rig,
                  const model::SimulationSettings& settings, const model::SimulationResult& r, bool tacho,
-                 double noise_rel) {
+                 double noise_rel, bool shafts) {
   std::ostringstream o;
   o << "{\n\"format\":\"ridgewatch-simulate-truth/1\",\n";
   o << "\"rig_file\":" << quoted(rig_file) << ",\n";
   o << "\"sample_rate_hz\":" << num(r.sample_rate_hz) << ",\"frames\":" << r.output.size()
     << ",\"duration_s\":" << num(static_cast<double>(r.output.size()) / r.sample_rate_hz)
-    << ",\"channels\":" << (tacho ? "[\"vib\",\"tacho\"]" : "[\"vib\"]") << ",\"seed\":" << settings.seed
+    << ",\"channels\":" << (tacho ? "[\"vib\",\"tacho\"]" : shafts ? "[\"vib\",\"phi1_dot\",\"phi2_dot\"]" : "[\"vib\"]")
+    << ",\"seed\":" << settings.seed
     << ",\"noise_rel\":" << num(noise_rel) << ",\n";
   o << "\"integrator\":{\"method\":\"rk4\",\"substeps_per_sample\":" << r.substeps_per_sample
     << ",\"internal_rate_hz\":" << num(r.sample_rate_hz * r.substeps_per_sample)
@@ -102,6 +118,11 @@ void write_truth(const std::string& path, const std::string& rig_file, const mod
     << ",\"shaft_hz\":" << num(rig.pinion_speed_hz()) << ",\"mesh_frequency_hz\":" << num(rig.mesh_frequency_hz())
     << ",\"static_force_n\":" << num(rig.static_mesh_force_n()) << ",\"static_deflection_m\":" << num(rig.static_deflection_m())
     << ",\"clean_peak\":" << num(r.clean_peak) << "},\n";
+  if (shafts) {
+    const ShaftSplit k = shaft_split(rig);
+    o << "\"shaft_split\":{\"rule\":\"phi_dot_i = vib / sensor_sensitivity * m_red * rb_i / J_i (rad/s)\",\"phi1_per_vib\":"
+      << num(k.k1) << ",\"phi2_per_vib\":" << num(k.k2) << "},\n";
+  }
   o << "\"effects\":[";
   for (std::size_t i = 0; i < r.effects.size(); ++i) {
     const auto& e = r.effects[i];
@@ -169,9 +190,11 @@ int run_simulate(const std::vector<std::string>& argv, std::ostream& out, std::o
   const double noise_rel = args.number("--noise", 0.0, 0.0, 10.0);
 
   const std::string channels = args.value("--channels").value_or("vib");
-  bool tacho = false;
+  bool tacho = false, shafts = false;
   if (channels == "vib,tacho") tacho = true;
-  else if (channels != "vib") throw UsageError("--channels: must be 'vib' or 'vib,tacho' (got '" + channels + "')");
+  else if (channels == "vib,shafts") shafts = true;
+  else if (channels != "vib")
+    throw UsageError("--channels: must be 'vib', 'vib,tacho' or 'vib,shafts' (got '" + channels + "')");
 
   RigConfig cfg = load_rig_yaml(*rig_path);
   std::set<std::string> cli_names;
@@ -212,16 +235,26 @@ int run_simulate(const std::vector<std::string>& argv, std::ostream& out, std::o
       samples[2 * i] = result.output[i];
       samples[2 * i + 1] = result.tacho[i];
     }
+  } else if (shafts) {
+    if (cfg.rig.sensor_quantity != model::SensorQuantity::kVelocity)
+      throw UsageError("--channels vib,shafts: the rig's sensor.quantity must be velocity (the split is of q̇)");
+    const ShaftSplit k = shaft_split(cfg.rig);
+    samples.resize(3 * result.output.size());
+    for (std::size_t i = 0; i < result.output.size(); ++i) {
+      samples[3 * i] = result.output[i];
+      samples[3 * i + 1] = k.k1 * result.output[i];
+      samples[3 * i + 2] = k.k2 * result.output[i];
+    }
   } else {
     samples = result.output;
   }
   try {
-    drivers::write_wav(*base + ".wav", samples, settings.sample_rate_hz, tacho ? 2 : 1);
-    write_truth(*base + ".truth.json", *rig_path, cfg.rig, settings, result, tacho, noise_rel);
+    drivers::write_wav(*base + ".wav", samples, settings.sample_rate_hz, shafts ? 3 : tacho ? 2 : 1);
+    write_truth(*base + ".truth.json", *rig_path, cfg.rig, settings, result, tacho, noise_rel, shafts);
   } catch (const std::runtime_error& e) {
     throw UsageError(std::string("--out: ") + e.what());
   }
-  err << "simulate: wrote " << *base << ".wav (" << result.output.size() << " frames, " << (tacho ? 2 : 1)
+  err << "simulate: wrote " << *base << ".wav (" << result.output.size() << " frames, " << (shafts ? 3 : tacho ? 2 : 1)
       << " channel(s), " << result.impacts.size() << " impacts, f0 " << cfg.rig.natural_frequency_hz() << " Hz) and "
       << *base << ".truth.json\n";
   return kExitOk;

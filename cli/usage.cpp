@@ -13,7 +13,7 @@ const Flag kFormat{"--format", "json|table",
                    "json (default; compare/diagnose: text) or table: aligned columns, 4 significant digits",
                    true};
 const Flag kRig{"--rig", "RIG.yaml", "rig file (config/rigs/, /usr/share/ridgewatch/rigs/); required", false, true};
-const Flag kWith{"--with", "EFFECT", "add a catalogue effect to the rig model (repeatable)"};
+const Flag kWith{"--with", "EFFECT[:k=v[!],...]", "add a catalogue or rig-file (custom_effects) effect to the model; k=v starts a parameter, k=v! fixes it (repeatable)"};
 const Flag kJson{"--json", "", "print the result as one JSON object instead of text (same as --format json)"};
 const Flag kPlots{"--plots", "DIR", "also write SVG plots and DIR/index.html (DIR is created)"};
 
@@ -25,12 +25,20 @@ std::vector<Command> make_commands() {
        "FILE",
        "detect impacts and print one JSON line per impact (frequency, damping ratio, status, alarm)",
        {
-           {"--config", "F", "configuration file; its pipeline section is used (default: built-in defaults)"},
+           {"--config", "F", "configuration file; its pipeline section and rig are used (default: built-in defaults)"},
+           {"--rig", "RIG.yaml", "rig file: f_expected_hz and the detector band from its model unless --config sets them; "
+                                 "the summary reports measured f vs model f_d"},
            kChannel,
+           {"--all-channels", "", "one stream per channel, same pipeline; events carry \"stream\": \"ch<N>\" (N 0-based), "
+                                  "in time order"},
+           {"--jobs", "N", "with several streams (--all-channels): run them on N threads, 1-256 (default 1)"},
+           {"--summary", "", "several FILEs allowed; instead of the events one JSON object, per file and stream and over all, "
+                             "with the count of events and of ok ones, mean zeta, its spread and 95 % interval, mean f"},
            kRate,
            kFormat,
        },
-       {"The same pipeline as ridgewatchd, on a file, as fast as possible."}},
+       {"The same pipeline as ridgewatchd, on a file, as fast as possible. With source.combine in --config the "
+        "stream is a derived channel (e.g. the mesh coordinate from two shaft channels)."}},
       {"modes",
        "FILE",
        "identify the modes (frequency, damping ratio, 95 % interval) of one free response",
@@ -76,7 +84,9 @@ std::vector<Command> make_commands() {
            {"--rate", "HZ", "output sample rate"},
            {"--noise", "REL", "sensor noise, relative to the response RMS"},
            {"--seed", "N", "random seed (same arguments and seed: same bytes)"},
-           {"--channels", "vib|vib,tacho", "channels written: the sensor, optionally a tacho pulse"},
+           {"--channels", "vib|vib,tacho|vib,shafts",
+            "channels written: the sensor, optionally a tacho pulse or the shaft speeds phi1_dot, phi2_dot (rad/s) "
+            "whose rb1 phi1_dot + rb2 phi2_dot is q dot"},
            {"--out", "BASE", "output base name; required", false, true},
            {"--list-effects", "", "print the effect catalogue as JSON and exit"},
        },
@@ -88,7 +98,7 @@ std::vector<Command> make_commands() {
        {}},
       {"diagnose",
        "FILE",
-       "find the missing model effect: try each catalogue effect, accept those that pass the gate",
+       "find the missing model effect: try each catalogue and rig-file effect, accept those that pass the gate",
        {
            kRig,
            kWith,
@@ -97,6 +107,7 @@ std::vector<Command> make_commands() {
            kJson,
            {"--history", "H.jsonl", "append this run to a history file (plotted by --plots)"},
            {"--max-impacts", "N", "impacts used, 4-100000 (default 16: 8 fitted, 8 held out)"},
+           {"--quiet", "", "no progress lines on stderr"},
            kPlots,
            kFormat,
        },
@@ -302,7 +313,8 @@ std::string man_config(const std::string& version, const std::string& config_yam
   std::ostringstream o;
   man_header(o, "RIDGEWATCH.YAML", 5, version);
   o << ".SH NAME\nridgewatch.yaml \\- configuration of ridgewatchd and ridgewatch analyze\n"
-    << ".SH DESCRIPTION\nA YAML file with the sections source, pipeline, output, gpio and logging. "
+    << ".SH DESCRIPTION\nA YAML file with the key rig (a rig file whose model supplies the expected "
+       "frequency and the detector band) and the sections source, pipeline, output, gpio and logging. "
        "A key left out keeps its default; unknown or mistyped keys and out-of-range values are errors "
        "(exit 2) naming the key. Check a file with\n.B ridgewatchd \\-\\-check\\-config\n.IR FILE ;\n"
        "print the defaults with\n.BR \"ridgewatchd \\-\\-print\\-defaults\" .\n"
@@ -334,7 +346,7 @@ std::string bash_completion() {
        "  case $prev in\n"
        "    --format) COMPREPLY=($(compgen -W 'json table' -- \"$cur\")); return ;;\n"
        "    --method) COMPREPLY=($(compgen -W 'two-point ridge-ls ml' -- \"$cur\")); return ;;\n"
-       "    --channels) COMPREPLY=($(compgen -W 'vib vib,tacho' -- \"$cur\")); return ;;\n"
+       "    --channels) COMPREPLY=($(compgen -W 'vib vib,tacho vib,shafts' -- \"$cur\")); return ;;\n"
        "    --plots) COMPREPLY=($(compgen -d -- \"$cur\")); return ;;\n";
   // Other valued flags take a number or a name: nothing to offer.
   o << "    ";

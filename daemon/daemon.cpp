@@ -10,11 +10,13 @@
 #include <condition_variable>
 #include <ctime>
 #include <mutex>
+#include <optional>
 #include <thread>
 #include <vector>
 
 #include "cli/args.hpp"
 #include "cli/event_json.hpp"
+#include "cli/rig_defaults.hpp"
 #include "core/pipeline/stream_processor.hpp"
 #include "core/rt/spsc_ring_buffer.hpp"
 #include "daemon/capture_store.hpp"
@@ -76,6 +78,7 @@ struct Daemon::Impl {
   std::unique_ptr<CaptureStore> captures;  // null: output.capture.dir empty
   pipeline::ImpactEvent last_event;        // for the status line
   bool have_last_event = false;
+  std::optional<cli::ModelGap> model_gap;  // measured f vs the rig model's f_d (config key rig)
 
   std::thread acquisition;
   std::atomic<bool> acq_stop{false};
@@ -154,6 +157,14 @@ struct Daemon::Impl {
                             std::to_string(fs) + " Hz)");
     }
     processor = std::make_unique<pipeline::StreamProcessor>(p);
+    model_gap.reset();
+    if (const cli::RigModelInfo& m = cfg.rig_model; !m.path.empty()) {
+      model_gap.emplace(m.f_d_hz);
+      spdlog::info("rig {}: model f_d {:.1f} Hz, mesh {:.1f} Hz; f_expected_hz {:.1f} ({}), detector band {:.0f}-{:.0f} Hz ({})",
+                   m.path, m.f_d_hz, m.mesh_hz, p.analyzer.f_expected_hz, m.f_expected ? "rig" : "configuration",
+                   p.detector.band_lo_hz, p.detector.band_hi_hz, m.band ? "rig" : "configuration");
+      if (!m.note.empty()) spdlog::warn("rig {}: {}", m.path, m.note);
+    }
   }
 
   void acquire() {
@@ -260,6 +271,7 @@ struct Daemon::Impl {
     for (const auto& e : events) {
       ++stats.events;
       if (e.status == pipeline::ImpactStatus::ok) ++stats.events_ok;
+      if (model_gap && e.status == pipeline::ImpactStatus::ok) model_gap->add_ok(e.f_hz);
       record_latency(e);
       last_event = e;
       have_last_event = true;
@@ -367,6 +379,10 @@ struct Daemon::Impl {
         if (next.source.type != cfg.source.type || next.source.replay.path != cfg.source.replay.path ||
             next.source.alsa.device != cfg.source.alsa.device)
           spdlog::warn("SIGHUP: source changes take effect after a restart; keeping the current source");
+        // A derived channel's gains are fixed when the source opens (radii of the rig at that time).
+        if (next.source.combine.type != "none" &&
+            (next.rig_model.rb1_m != cfg.rig_model.rb1_m || next.rig_model.rb2_m != cfg.rig_model.rb2_m))
+          spdlog::warn("SIGHUP: the rig's base radii changed; source.combine keeps the old ones until a restart");
         next.source = cfg.source;
         if (next.output.mqtt.host != cfg.output.mqtt.host || next.http.listen != cfg.http.listen)
           spdlog::warn("SIGHUP: output.mqtt and http changes take effect after a restart; keeping the current ones");
@@ -417,6 +433,7 @@ struct Daemon::Impl {
       else
         text += ", baseline learning";
     }
+    if (model_gap) text += ", " + model_gap->text();
     text += fmt::format(", {} overruns, {} write failures", stats.overruns, stats.events_failed_to_write);
     if (captures)
       text += fmt::format(", captures {} written, {} removed, {} failed", stats.captures_written,
@@ -444,7 +461,8 @@ const DaemonStats& Daemon::stats() const { return impl_->stats; }
 int Daemon::run() {
   Impl& d = *impl_;
   try {
-    d.source = d.options.source_factory ? d.options.source_factory(d.cfg.source) : open_source(d.cfg.source);
+    d.source = d.options.source_factory ? d.options.source_factory(d.cfg.source)
+                                         : open_source(d.cfg, d.options.config_path.empty() ? "configuration" : d.options.config_path);
   } catch (const drivers::InputError& e) {
     spdlog::critical("{}", e.what());
     return cli::kExitBadInput;

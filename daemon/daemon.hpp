@@ -89,5 +89,8 @@ class Daemon {
 /// Opens the configured source (replay file with pacing/looping, or ALSA). Throws drivers::InputError
 /// (file or device problems) or cli::UsageError (configuration).
 std::unique_ptr<drivers::SampleSource> open_source(const cli::SourceConfig& config);
+/// The same, with source.combine (a derived channel; its mesh_velocity radii from config.rig):
+/// UsageError naming `config_name` and the source.combine key for a channel the file or device lacks.
+std::unique_ptr<drivers::SampleSource> open_source(const cli::RidgewatchConfig& config, const std::string& config_name);
 
 }  // namespace ridgewatch::daemon

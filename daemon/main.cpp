@@ -66,7 +66,7 @@ int run_survey_mode(const cli::Args& args, const cli::RidgewatchConfig& config, 
   output.write_config = args.value("--write-config");
   output.base_config = config_path;
   cli::check_survey_output(output);
-  auto source = ridgewatch::daemon::open_source(config.source);
+  auto source = ridgewatch::daemon::open_source(config, config_path.value_or("configuration"));
   const double fs = source->info().sample_rate_hz;
   const auto want = static_cast<std::size_t>(std::llround(seconds * fs));
   std::vector<double> x;
@@ -103,7 +103,8 @@ int run(const std::vector<std::string>& argv) {
     return cli::kExitOk;
   }
   if (const auto file = args.value("--check-config")) {
-    cli::load_config_file(*file);  // throws UsageError naming the key
+    const cli::RidgewatchConfig checked = cli::load_config_file(*file);  // throws UsageError naming the key
+    cli::combine_gains(checked, *file);  // the daemon has no --rig: mesh_velocity needs the rig key
     std::cout << *file << ": ok\n";
     return cli::kExitOk;
   }

@@ -6,12 +6,14 @@
 #include "cli/args.hpp"
 #include "daemon/daemon.hpp"
 #include "drivers/alsa_source.hpp"
+#include "drivers/combined_source.hpp"
 #include "drivers/paced_source.hpp"
 #include "drivers/replay_file.hpp"
 
 namespace ridgewatch::daemon {
 
-std::unique_ptr<drivers::SampleSource> open_source(const cli::SourceConfig& config) {
+namespace {
+std::unique_ptr<drivers::SampleSource> open_with_gains(const cli::SourceConfig& config, const std::vector<double>& gains) {
   if (config.type == "alsa") {
     const cli::AlsaSourceConfig& a = config.alsa;
     drivers::AlsaSourceConfig c;
@@ -19,6 +21,7 @@ std::unique_ptr<drivers::SampleSource> open_source(const cli::SourceConfig& conf
     c.rate_hz = static_cast<unsigned>(std::lround(a.rate_hz));
     c.channels = static_cast<unsigned>(a.channels);
     c.channel = static_cast<unsigned>(a.channel);
+    c.gains = gains;
     c.format = a.format == "S16_LE"   ? drivers::AlsaSampleFormat::s16_le
                : a.format == "FLOAT_LE" ? drivers::AlsaSampleFormat::float_le
                                         : drivers::AlsaSampleFormat::s32_le;
@@ -39,7 +42,29 @@ std::unique_ptr<drivers::SampleSource> open_source(const cli::SourceConfig& conf
   drivers::PacedSourceConfig paced;
   paced.speed = config.replay.speed;
   paced.loop = config.replay.loop;
-  return drivers::open_paced_replay(config.replay.path, opt, paced);
+  if (gains.empty()) return drivers::open_paced_replay(config.replay.path, opt, paced);
+  const std::string path = config.replay.path;
+  const std::vector<std::size_t> channels = config.combine.channels;
+  return std::make_unique<drivers::PacedSource>(
+      [path, channels, gains, opt] { return drivers::open_combined_replay(path, channels, gains, opt.csv_rate_hz); }, paced);
+}
+}  // namespace
+
+std::unique_ptr<drivers::SampleSource> open_source(const cli::SourceConfig& config) { return open_with_gains(config, {}); }
+
+std::unique_ptr<drivers::SampleSource> open_source(const cli::RidgewatchConfig& c, const std::string& config_name) {
+  if (c.source.combine.type == "none") return open_with_gains(c.source, {});
+  if (c.source.type == "alsa") {
+    const std::vector<double> g = cli::combine_gains(c, config_name, c.source.alsa.channels);
+    std::vector<double> gains(c.source.alsa.channels, 0.0);
+    for (std::size_t i = 0; i < g.size(); ++i) gains[c.source.combine.channels[i]] += g[i];
+    return open_with_gains(c.source, gains);
+  }
+  // The file's channel count first, so a channel it lacks is a configuration error naming the key.
+  drivers::ReplayOptions probe;
+  if (c.source.replay.rate_hz > 0) probe.csv_rate_hz = c.source.replay.rate_hz;
+  const std::size_t available = drivers::open_replay(c.source.replay.path, probe)->info().channels;
+  return open_with_gains(c.source, cli::combine_gains(c, config_name, available));
 }
 
 std::uint64_t take_source_gap(drivers::SampleSource& source) {

@@ -82,6 +82,9 @@ void validate(const AlsaSourceConfig& c) {
   if (c.rate_hz < 1000 || c.rate_hz > 5000000)
     fail("rate_hz: must be in 1000..5000000 (got " + std::to_string(c.rate_hz) + ")");
   if (c.channels < 1) fail("channels: must be >= 1");
+  if (!c.gains.empty() && c.gains.size() != c.channels)
+    fail("gains: need one per channel (got " + std::to_string(c.gains.size()) + ", channels " +
+         std::to_string(c.channels) + ")");
   if (c.channel >= c.channels)
     fail("channel: must be < channels (got " + std::to_string(c.channel) + ", channels " +
          std::to_string(c.channels) + ")");
@@ -162,7 +165,7 @@ AlsaSource::AlsaSource(AlsaSourceConfig config, std::shared_ptr<const AlsaLocalC
   info_.sample_rate_hz = config_.rate_hz;
   info_.channels = config_.channels;
   info_.channel = config_.channel;
-  if (config_.format != AlsaSampleFormat::float_le) info_.full_scale = 1.0;  // integer formats: +-1.0
+  if (config_.format != AlsaSampleFormat::float_le && config_.gains.empty()) info_.full_scale = 1.0;  // integer: +-1.0
   bytes_per_sample_ = bytes_per_sample(config_.format);
   open_and_configure();
 }
@@ -214,6 +217,7 @@ void AlsaSource::open_and_configure() {
   buffer_frames_ = buffer;
   // Allocated once per (re)open, never per read.
   raw_.assign(period_frames_ * config_.channels * bytes_per_sample_, 0);
+  if (!config_.gains.empty()) mix_.assign(period_frames_, 0.0);
 }
 
 void AlsaSource::handle_error(long err) {
@@ -288,7 +292,18 @@ AlsaSource::ReadResult AlsaSource::read_block(std::span<double> out) {
       handle_error(n);
       continue;
     }
-    convert(raw_.data(), static_cast<std::size_t>(n), config_.channels, config_.channel, config_.format, out.data());
+    if (config_.gains.empty()) {
+      convert(raw_.data(), static_cast<std::size_t>(n), config_.channels, config_.channel, config_.format, out.data());
+    } else {
+      // Derived channel: the weighted sum of the channels, in double precision.
+      std::fill(out.begin(), out.begin() + n, 0.0);
+      for (std::size_t c = 0; c < config_.channels; ++c) {
+        const double g = config_.gains[c];
+        if (g == 0.0) continue;
+        convert(raw_.data(), static_cast<std::size_t>(n), config_.channels, c, config_.format, mix_.data());
+        for (std::size_t i = 0; i < static_cast<std::size_t>(n); ++i) out[i] += g * mix_[i];
+      }
+    }
     result.count = static_cast<std::size_t>(n);
   }
   result.gap_frames_before = pending_gap_frames_;

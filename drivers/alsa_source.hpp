@@ -62,6 +62,9 @@ struct AlsaSourceConfig {
   unsigned rate_hz = 51200;        ///< must be supported exactly (no silent resampling), 1000..5000000
   unsigned channels = 1;           ///< channels of the capture stream, >= 1
   unsigned channel = 0;            ///< 0-based channel delivered, < channels
+  /// Non-empty: a derived channel, sum_c gains[c] x_c over all `channels` (one gain per channel, 0 for
+  /// a channel not used) in place of `channel`; the result has no full scale (drivers/combined_source.hpp).
+  std::vector<double> gains;
   AlsaSampleFormat format = AlsaSampleFormat::s32_le;
   unsigned period_frames = 1024;   ///< requested period (ALSA picks the nearest), >= 16
   unsigned buffer_frames = 8192;   ///< requested ALSA buffer (nearest), >= 2 * period_frames
@@ -171,6 +174,7 @@ class AlsaSource : public SampleSource {
   std::size_t buffer_frames_ = 0;
   std::size_t bytes_per_sample_ = 0;
   std::vector<unsigned char> raw_;  // one period of interleaved frames
+  std::vector<double> mix_;         // one period of one channel (config_.gains), sized with raw_
   ReconnectBackoff backoff_;
   std::uint64_t pending_gap_frames_ = 0;  // lost before the next delivered sample
   std::uint64_t taken_gap_frames_ = 0;    // gap before the last read's samples, for take_gap_frames

@@ -9,6 +9,7 @@ packages=(
   dpkg-dev man-db  # the .deb (CPack, dpkg-shlibdeps) and its test (man -l)
   clang-14 libclang-rt-14-dev
   libmosquitto-dev mosquitto libcpp-httplib-dev prometheus
+  libmuparser-dev  # expressions of user-defined effects (rig file model.custom_effects)
 )
 missing=()
 for p in "${packages[@]}"; do

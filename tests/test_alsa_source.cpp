@@ -119,6 +119,27 @@ TEST_F(AlsaSourceTest, FloatThreeChannelsLastChannelUnscaled) {
   for (std::size_t i = 0; i < got.size(); ++i) ASSERT_EQ(got[i], static_cast<double>(raw[3 * i + 2])) << "frame " << i;
 }
 
+// source.combine on ALSA: the weighted sum of the channels, per period, with no full scale.
+TEST_F(AlsaSourceTest, GainsDeliverTheWeightedSumOfTheChannels) {
+  std::vector<std::int16_t> raw;
+  for (int i = 0; i < 300; ++i) {
+    raw.push_back(static_cast<std::int16_t>(i * 90 - 12000));  // φ̇1
+    raw.push_back(static_cast<std::int16_t>(5000 - i * 31));   // φ̇2
+    raw.push_back(static_cast<std::int16_t>(30000));           // unused (gain 0)
+  }
+  const auto local = file_pcm(write_raw(raw));
+  rd::AlsaSourceConfig c = config(rd::AlsaSampleFormat::s16_le, 3, 0);
+  c.gains = {0.03046, 0.08466, 0.0};
+  rd::AlsaSource source(c, local);
+  EXPECT_FALSE(source.info().full_scale.has_value());
+  const auto got = read_n(source, 300);
+  for (std::size_t i = 0; i < got.size(); ++i)
+    ASSERT_NEAR(got[i], 0.03046 * raw[3 * i] / 32768.0 + 0.08466 * raw[3 * i + 1] / 32768.0, 1e-15) << "frame " << i;
+  // One gain per channel or none.
+  c.gains = {1.0, 2.0};
+  EXPECT_THROW(rd::validate(c), std::invalid_argument);
+}
+
 TEST_F(AlsaSourceTest, ReadsPastTheEndOfTheFileGiveSilence) {
   // The file plugin reports full reads past the end of infile without writing the buffer; the driver
   // zero-fills, so the result is silence, not stale data.

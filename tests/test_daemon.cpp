@@ -242,7 +242,9 @@ TEST(Daemon, SighupReopensTheEventLogForRotation) {
   const auto dir = temp_dir("rotate");
   ChildProcess d({RIDGEWATCHD_PATH, "--replay", kReplay, "--speed", "2", "--events", (dir / "ev.jsonl").string()},
                  {}, (dir / "out").string(), (dir / "err").string());
-  std::this_thread::sleep_for(400ms);
+  // Start-up (FFT plans) took over 400 ms on a loaded 2-core machine: wait for the log to exist first.
+  for (int i = 0; i < 500 && !fs::exists(dir / "ev.jsonl"); ++i) std::this_thread::sleep_for(10ms);
+  std::this_thread::sleep_for(200ms);
   fs::rename(dir / "ev.jsonl", dir / "ev.jsonl.1");
   d.signal(SIGHUP);
   ASSERT_EQ(d.wait(30s), 0) << slurp(dir / "err");

@@ -6,6 +6,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <stdexcept>
 #include <vector>
 
 #include "core/dsp/modes.hpp"
@@ -141,62 +142,51 @@ TEST(ModesDetection, Table1ModesDoNotDependOnTheBandOrEta0) {
   }
 }
 
-// Random multi-mode signals from the independent generator (1-5 modes 1.3-1.9x apart, zeta log-uniform
-// in 1e-4..0.01 and clamped so that every decay lasts 10 ms..0.3 s, amplitudes 50-300 in physical
-// units, a strong mode at 10 kHz above the band of interest): every mode inside the band is found, and
-// an `ok` zeta agrees with the truth within 3x its interval. 44.1 / 48 kHz.
-// Not covered here (measured limits, see README): weak, heavily damped modes (zeta > 0.01) next to a
-// much stronger neighbour can be missed.
-TEST(ModesDetection, RandomMultiModeSignalsAreFoundInAnyBandContainingThem) {
-  indep::Rng rng(2024);
-  int checked = 0;
-  for (int trial = 0; trial < 2 * kSeeds; ++trial) {
-    const double fs = trial % 2 ? 44100.0 : 48000.0;
-    const int k = 1 + static_cast<int>(rng.uniform() * 5.0);
-    std::vector<indep::Mode> modes;
-    double f = rng.uniform(300.0, 600.0);
-    for (int i = 0; i < k; ++i) {
-      indep::Mode m;
-      m.f_hz = f;
-      // zeta log-uniform in [1e-4, 0.05], but the decay must last at least 40 ms and at most the record
-      m.zeta = std::exp(rng.uniform(std::log(1e-4), std::log(0.01)));
-      m.zeta = std::clamp(m.zeta, 1.0 / (indep::kTwoPi * f * 0.3), 1.0 / (indep::kTwoPi * f * 0.01));
-      m.amplitude = rng.uniform(50.0, 300.0);
-      m.phase_rad = rng.uniform(0.0, 6.28);
-      modes.push_back(m);
-      f *= rng.uniform(1.3, 1.9);
-    }
-    indep::Mode strong;  // far above the band of interest
-    strong.f_hz = 10000.0;
-    strong.zeta = 0.002;
-    strong.amplitude = 3000.0;
-    modes.push_back(strong);
-    const auto x = decay_signal(modes, fs, 1.0, 0.05, static_cast<std::uint64_t>(trial + 1));
-    const double band_hi = modes[static_cast<std::size_t>(k - 1)].f_hz * 1.3;
-    ModeSearchOptions opt;
-    opt.onset_s = 0.0;
-    opt.f_min_hz = 200.0;
-    opt.f_max_hz = band_hi;
-    const ModeSearchResult r = identify_modes(x, fs, opt);
-    for (int i = 0; i < k; ++i) {
-      const auto& m = modes[static_cast<std::size_t>(i)];
-      const IdentifiedMode* got = nearest(r, m.f_hz);
-      ASSERT_NE(got, nullptr) << "trial " << trial << " f " << m.f_hz;
-      EXPECT_NEAR(got->selected.f_hz / m.f_hz, 1.0, 2e-3) << "trial " << trial << " f " << m.f_hz;
-      if (got->ml.status == EstimateStatus::ok) {
-        const double half = 3.0 * 0.5 * (got->ml.zeta_ci95_hi - got->ml.zeta_ci95_lo);
-        EXPECT_NEAR(got->ml.zeta, m.zeta, std::max(half, 0.01 * m.zeta)) << "trial " << trial << " f " << m.f_hz;
-        ++checked;
+// Any eta0 the user types: Table 1 at 20 dB with eta0 5 ... 100. Every mode is reported at every eta0
+// (none dropped: a dropped mode biased its neighbours' joint fit by 5-7 % with status ok); the ml
+// estimates do not depend on eta0 (the maximum-likelihood optimum does not depend on its start: within
+// a tenth of their standard uncertainty, so no eta0 changes a conclusion); an ok zeta is within 3x its
+// 95 % half-width of the truth (> 5 sigma); a mode that is not ok has a note saying why. eta0 5-20
+// resolve the three modes (the nearest neighbour is 250 Hz away: eta0 >= 3 f / df <= 3.75 suffices at
+// 250 Hz, 3 at 500 Hz; the shortest decay, 500 Hz, lasts > 10 kernel widths at eta0 20): all ok.
+// eta0 below 5 is refused (the Morlet correction term of Eq. 4 is no longer negligible).
+TEST(ModesDetection, ResultsDoNotDependOnTheEta0TheUserTypes) {
+  const auto truth = paper_table1_components();
+  const double eta0s[] = {5, 8, 12, 20, 50, 100};
+  for (int seed = 1; seed <= std::min(kSeeds, 3); ++seed) {
+    auto x = damped_sum(truth, 10000.0, 10000);
+    add_white_noise(x, 20.0, static_cast<std::uint64_t>(40 + seed));
+    std::vector<double> ref_zeta, ref_sd;
+    for (double eta0 : eta0s) {
+      ModeSearchOptions opt;
+      opt.onset_s = 0.0;
+      opt.eta0 = eta0;
+      const ModeSearchResult r = identify_modes(x, 10000.0, opt);
+      ASSERT_EQ(r.modes.size(), 3u) << "seed " << seed << " eta0 " << eta0;
+      for (std::size_t i = 0; i < 3; ++i) {
+        const IdentifiedMode& m = r.modes[i];
+        const auto& e = m.ml;
+        EXPECT_NEAR(e.f_hz / truth[i].f_hz, 1.0, 1e-3) << seed << " eta0 " << eta0;
+        if (ref_zeta.size() < 3) {
+          ref_zeta.push_back(e.zeta);
+          ref_sd.push_back(e.zeta_sd);
+        } else {
+          EXPECT_NEAR(e.zeta, ref_zeta[i], 0.1 * ref_sd[i]) << seed << " eta0 " << eta0 << " " << truth[i].f_hz;
+        }
+        if (m.selected.status == EstimateStatus::ok) {
+          EXPECT_NEAR(e.zeta, truth[i].zeta, 3.0 * 0.5 * (e.zeta_ci95_hi - e.zeta_ci95_lo)) << seed << " eta0 " << eta0;
+        } else {
+          EXPECT_FALSE(m.note.empty()) << seed << " eta0 " << eta0 << " " << truth[i].f_hz;
+        }
+        if (eta0 <= 20) {
+          EXPECT_EQ(m.selected.status, EstimateStatus::ok) << seed << " eta0 " << eta0 << " " << truth[i].f_hz << ": " << m.note;
+        }
       }
     }
-    // nothing reported outside the band
-    for (const auto& mm : r.modes) {
-      if (mm.selected.status != EstimateStatus::ok) continue;
-      EXPECT_GE(mm.selected.f_hz, 200.0);
-      EXPECT_LE(mm.selected.f_hz, band_hi);
-    }
   }
-  EXPECT_GT(checked, 2 * kSeeds);  // most modes end up ok (clean, well separated decays)
+  ModeSearchOptions bad;
+  bad.eta0 = 3.0;
+  EXPECT_THROW(identify_modes(damped_sum(truth, 10000.0, 10000), 10000.0, bad), std::invalid_argument);
 }
 
 // Status rules: every reported value is possible, statuses sorted by frequency, a note when no mode.

@@ -32,6 +32,7 @@ std::string implausibility(const ModelFitter& fitter, const FitResult& fit, cons
   bool significant = false;
   for (const auto& f : c->free) {
     const ParameterEstimate* e = find_estimate(fit, effect + "." + f.key);
+    if (e == nullptr) continue;  // fixed by the user
     if (e->at_bound && !f.bounds_attainable) return f.key + " at the bound of its range (" + format_number(e->value) + ")";
     double null_value = 0.0;
     bool has_null = false;
@@ -124,6 +125,8 @@ std::string evidence(const std::string& effect, const FitResult& fit, const Resi
     else o << "a decaying residual line away from f0: a second mode";
   } else if (effect == "damping_drift") {
     o << "the damping ratio changes along the record while each impact fits on its own";
+  } else if (const model::EffectDescriptor* d = model::find_effect(effect); d != nullptr && !model::find_catalogue_effect(effect)) {
+    o << d->explanation;  // a user-defined effect: its expression
   }
   o << ". Fitted:";
   for (const auto& e : fit.estimates)
@@ -216,8 +219,11 @@ DiagnoseResult diagnose(const ModelFitter& fitter, const std::vector<std::string
   res.rounds.push_back({model, current.heldout_excess, current.fit_percent, current_rep});
 
   std::vector<std::string> pool = options.candidates;
-  if (pool.empty())
-    for (const auto& c : candidate_table()) pool.push_back(c.effect);
+  if (pool.empty()) pool = candidate_names();
+  auto progress = [&](const std::string& line) {
+    if (options.progress) options.progress(line);
+  };
+  progress("start model fitted: held-out excess " + format_number(current.heldout_excess));
 
   for (int round = 1; round <= options.max_rounds; ++round) {
     std::vector<std::pair<CandidateOutcome, FitResult>> tried;
@@ -227,8 +233,44 @@ DiagnoseResult diagnose(const ModelFitter& fitter, const std::vector<std::string
       if (std::find(model.begin(), model.end(), name) != model.end()) continue;
       std::vector<std::string> with = model;
       with.push_back(name);
+      progress("round " + std::to_string(round) + ": fitting " + name);
       FitResult f;
-      if (name == "second_mode") {
+      const CandidateSpec* spec = find_candidate(name);
+      if (!spec->unknown_starts.empty()) {
+        // A user-defined effect whose size the user did not give: three starts across the log (or
+        // linear) range of those parameters (at 1/6, 1/2 and 5/6 of it: nine decades apart is too
+        // far for LM to travel from a start where the term is negligible); the best training fit.
+        bool first = true;
+        for (double frac : {1.0 / 6.0, 0.5, 5.0 / 6.0}) {
+          std::vector<std::pair<std::string, double>> starts;
+          for (const auto& fp : spec->free) {
+            if (std::find(spec->unknown_starts.begin(), spec->unknown_starts.end(), fp.key) == spec->unknown_starts.end()) continue;
+            if (fitter.parameter_settings().count(name + "." + fp.key)) continue;
+            const double v = fp.transform == Transform::kLog ? std::exp(std::log(fp.lo) + frac * (std::log(fp.hi) - std::log(fp.lo)))
+                                                             : fp.lo + frac * (fp.hi - fp.lo);
+            starts.push_back({name + "." + fp.key, v});
+          }
+          FitResult g;
+          try {
+            g = fitter.fit(with, &current, starts);
+          } catch (const std::domain_error&) {
+            continue;  // the expression left its finite range from this start
+          }
+          if (first || g.train_chi2 < f.train_chi2) f = std::move(g);
+          first = false;
+          if (starts.empty()) break;
+        }
+        if (first) {
+          CandidateOutcome o;
+          o.effect = name;
+          o.round = round;
+          o.excess_before = o.excess_after = current.heldout_excess;
+          o.plausibility = "its force is not finite at the states the fit reached";
+          o.evidence = o.plausibility;
+          res.steps.push_back(o);
+          continue;
+        }
+      } else if (name == "second_mode") {
         bool first = true;
         for (double f2 : second_mode_starts(current_rep, f0, zeta)) {
           FitResult g = fitter.fit(with, &current, {{"second_mode.frequency_hz", f2}});
@@ -355,6 +397,8 @@ DiagnoseResult diagnose(const ModelFitter& fitter, const std::vector<std::string
       }
     }
     if (best >= 0) tried[static_cast<std::size_t>(best)].first.accepted = true;
+    progress("round " + std::to_string(round) + ": " +
+             (best >= 0 ? "accepted " + tried[static_cast<std::size_t>(best)].first.effect : std::string("no candidate passes")));
     for (const auto& t : tried) res.steps.push_back(t.first);
     if (best < 0) break;
     auto& chosen = tried[static_cast<std::size_t>(best)];

@@ -1,6 +1,7 @@
 // The missing-effect loop (issue 5 "diagnose"): starting from a model, refit with every diagnosable
-// catalogue effect not yet in it, judge each on the held-out impacts, accept the best one that passes
-// the gate, repeat until none passes. Pure computation.
+// catalogue effect not yet in it (and every user-defined effect of the rig file, impact_model.hpp),
+// judge each on the held-out impacts, accept the best one that passes the gate, repeat until none
+// passes. Pure computation.
 //
 // Gate (all required; DESIGN.md "Model-discrepancy loop"):
 //  1. clear held-out gain: excess_before - excess_after > 3 sqrt(2 / n_held) (1 + excess_after), three
@@ -14,6 +15,7 @@
 //     bandwidth and off the mesh lines and sidebands, damped below 0.2; a damping drift keeping ζ > 0).
 #pragma once
 
+#include <functional>
 #include <string>
 #include <vector>
 
@@ -44,6 +46,9 @@ struct DiagnoseOptions {
   std::vector<std::string> candidates;  ///< empty: every diagnosable effect
   /// LM restarts of an accepted model from its own optimum (until χ² improves by less than 1).
   int polish_restarts = 2;
+  /// Called with one line per stage (each candidate fit, each round's outcome) for progress reports;
+  /// the caller decides where it goes (the CLI: stderr). Empty: silent.
+  std::function<void(const std::string&)> progress;
 };
 
 struct DiagnoseResult {

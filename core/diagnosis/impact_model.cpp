@@ -50,38 +50,111 @@ const std::vector<CandidateSpec>& candidate_table() {
       {"mesh_stiffness_variation",
        {{"scale", Transform::kLog, 1e-3, 5.0, 0.5}, {"static_coupling", Transform::kBounded, 0.0, 1.0, 0.5, true}},
        {},
-       true},
+       true, {}},
       {"transmission_error",
        {{"e1_m", Transform::kLog, 1e-10, 1e-4, 1e-7}, {"e2_m", Transform::kLog, 1e-10, 1e-4, 5e-8}},
        {{"e3_m", 0.0}},
-       true},
-      {"coulomb_friction", {{"force_n", Transform::kLog, 1e-2, 1e4, 5.0}}, {}, false},
-      {"quadratic_damping", {{"coefficient_n_s2_per_m2", Transform::kLog, 1e2, 1e9, 1e5}}, {}, false},
+       true, {}},
+      {"coulomb_friction", {{"force_n", Transform::kLog, 1e-2, 1e4, 5.0}}, {}, false, {}},
+      {"quadratic_damping", {{"coefficient_n_s2_per_m2", Transform::kLog, 1e2, 1e9, 1e5}}, {}, false, {}},
       {"second_mode",
        {{"frequency_hz", Transform::kLog, 10.0, 20000.0, 1000.0},
         {"damping_ratio", Transform::kLog, 1e-4, 0.5, 0.02},
         {"participation", Transform::kLog, 1e-4, 10.0, 0.1}},
        {},
-       false},
-      {"contact_loss", {{"loss_fraction", Transform::kBounded, 0.0, 1.0, 0.5, true}}, {}, false},
+       false, {}},
+      {"contact_loss", {{"loss_fraction", Transform::kBounded, 0.0, 1.0, 0.5, true}}, {}, false, {}},
       // x_ref is fixed: only κ / x_ref² is identifiable (the cubic coefficient).
       {"stiffness_nonlinearity",
        {{"kappa", Transform::kBounded, -0.2, 5.0, 0.0}},
        {{"reference_deflection_m", 2e-6}},
-       false},
+       false, {}},
       // A linear drift only; a step would need its (discontinuous) time as a parameter.
       {"damping_drift",
        {{"rate_per_s", Transform::kBounded, -0.01, 0.01, 0.0}},
        {{"step", 0.0}, {"step_time_s", 1e6}},
-       false},
+       false, {}},
   };
   return table;
 }
 
+namespace {
+
+/// A user-defined effect as a candidate: every parameter with a range is fitted. A parameter whose
+/// range is [0, max] or [min > 0, max] with max/min > 100 is fitted on a log scale (its size is
+/// unknown to decades, like the catalogue's force and coefficients; a zero minimum becomes max · 1e-9,
+/// nine decades below the largest allowed value); any other range (e.g. across zero) logistically.
+/// Start: the user's `start`, else the default when it lies inside the range and is not the null
+/// value, else the middle of the (log) range; diagnose also tries other starts for such parameters
+/// (user_start_free = false).
+CandidateSpec user_candidate(const model::UserEffect& u) {
+  CandidateSpec c;
+  c.effect = u.descriptor.name;
+  c.mesh_periodic = false;
+  for (const auto& p : u.descriptor.parameters) {
+    if (!(p.max_value > p.min_value)) {
+      c.fixed[p.key] = p.default_value;
+      continue;
+    }
+    FreeParameter f;
+    f.key = p.key;
+    const bool log_scale = p.min_value >= 0.0 && p.max_value > 0.0 &&
+                           (p.min_value == 0.0 || p.max_value / p.min_value > 100.0);
+    if (log_scale) {
+      f.transform = Transform::kLog;
+      f.lo = p.min_value > 0.0 ? p.min_value : p.max_value * 1e-9;
+      f.hi = p.max_value;
+    } else {
+      f.transform = Transform::kBounded;
+      f.lo = p.min_value;
+      f.hi = p.max_value;
+    }
+    const bool is_null = p.null_value && p.default_value == *p.null_value;
+    if (auto it = u.starts.find(p.key); it != u.starts.end()) {
+      f.start = it->second;
+    } else if (p.default_value > f.lo && p.default_value < f.hi && !is_null) {
+      f.start = p.default_value;
+    } else {
+      f.start = log_scale ? std::sqrt(f.lo * f.hi) : 0.5 * (f.lo + f.hi);
+      c.unknown_starts.push_back(p.key);
+    }
+    if (log_scale) f.start = std::clamp(f.start, f.lo, f.hi);
+    c.free.push_back(f);
+  }
+  return c;
+}
+
+const std::vector<CandidateSpec>& user_candidates() {
+  thread_local std::vector<CandidateSpec> cache;
+  thread_local std::uint64_t generation = ~std::uint64_t{0};
+  if (generation != model::user_effects_generation()) {
+    cache.clear();
+    // One with nothing to fit (no parameter, or every range a single value) is no candidate: the
+    // fitted model is built from the fitted parameters' effects, and a fixed force is for simulate.
+    for (const auto& u : model::user_effects()) {
+      CandidateSpec c = user_candidate(u);
+      if (!c.free.empty()) cache.push_back(std::move(c));
+    }
+    generation = model::user_effects_generation();
+  }
+  return cache;
+}
+
+}  // namespace
+
 const CandidateSpec* find_candidate(const std::string& name) {
   for (const auto& c : candidate_table())
     if (c.effect == name) return &c;
+  for (const auto& c : user_candidates())
+    if (c.effect == name) return &c;
   return nullptr;
+}
+
+std::vector<std::string> candidate_names() {
+  std::vector<std::string> names;
+  for (const auto& c : candidate_table()) names.push_back(c.effect);
+  for (const auto& c : user_candidates()) names.push_back(c.effect);
+  return names;
 }
 
 WindowSimulator::WindowSimulator(const model::RigParameters& rig, const PhysicsValues& physics,
@@ -285,6 +358,19 @@ using Vec = std::array<double, 4>;  // x, v, p, pd
 
 void WindowSimulator::simulate(std::uint64_t first, std::size_t n, const Impact& imp, const ModelState& carry,
                                double* out, End& end) const {
+  try {
+    simulate_unguarded(first, n, imp, carry, out, end);
+  } catch (const std::domain_error&) {
+    // A user-defined force left its finite range (the response diverged at parameters the optimiser
+    // tried): a window of 1e10 output units, far worse than any fit, so that LM rejects the step
+    // instead of the whole run stopping; a final fit there fails every gate.
+    for (std::size_t i = 0; i < n; ++i) out[i] = 1e10;
+    end = End{};
+  }
+}
+
+void WindowSimulator::simulate_unguarded(std::uint64_t first, std::size_t n, const Impact& imp, const ModelState& carry,
+                                         double* out, End& end) const {
   const double t_begin = static_cast<double>(first) / fs_;
   const double omega = kTwoPi * imp.mesh_hz;
   const Steady ss = mesh_forcing_ ? steady_state(imp.mesh_hz) : Steady{};
@@ -341,6 +427,10 @@ void WindowSimulator::simulate(std::uint64_t first, std::size_t n, const Impact&
   std::vector<int> regimes(effects_.size(), 1);
   bool stuck = false;
 
+  // Time since the latest impact (user-defined effects' t): before this window's onset, since the
+  // previous impact one revolution earlier (z1 / f_z).
+  const double revolution_s = imp.mesh_hz > 0.0 ? static_cast<double>(rig_.pinion_teeth) / imp.mesh_hz : 0.0;
+  auto since_impact = [&](double t) { return t >= imp.onset_s ? t - imp.onset_s : t - imp.onset_s + revolution_s; };
   auto pulse = [&](double t) {
     const double u = (t - imp.onset_s) / pulse_s_;
     return (u >= 0.0 && u < 1.0) ? imp.force_n * std::sin(std::numbers::pi * u) : 0.0;
@@ -348,6 +438,7 @@ void WindowSimulator::simulate(std::uint64_t first, std::size_t n, const Impact&
   auto mesh_state = [&](double t, const Vec& s) {
     model::MeshState m;
     m.t_s = t;
+    m.t_since_impact_s = since_impact(t);
     m.mesh_angle_rad = physics_.mesh_phase_rad + omega * (t - imp.onset_s);
     m.x_m = s[0];
     m.v_m_per_s = s[1];
@@ -364,6 +455,7 @@ void WindowSimulator::simulate(std::uint64_t first, std::size_t n, const Impact&
     for (std::size_t i = 0; i < effects_.size(); ++i) factor *= effects_[i]->mesh_force_factor(regimes[i]);
     model::MeshState m;
     m.t_s = t;
+    m.t_since_impact_s = since_impact(t);
     m.mesh_angle_rad = th;
     m.x_m = s[0];
     m.v_m_per_s = s[1];

@@ -55,13 +55,19 @@ struct CandidateSpec {
   std::vector<FreeParameter> free;
   model::EffectValues fixed;  ///< the remaining parameters (at their null value or a fixed reference)
   bool mesh_periodic = false; ///< uses the shared mesh phase φ_z
+  /// User-defined effects: free parameters the user gave no start for (diagnose tries several).
+  std::vector<std::string> unknown_starts;
 };
 
 /// The dynamics effects `diagnose` can try, in catalogue order. Sensor effects (noise, hum, spikes)
 /// and kinematics (speed_variation: the local revolution period is measured per impact) are not
 /// candidates.
 const std::vector<CandidateSpec>& candidate_table();
+/// The catalogue's candidates, then the user-defined effects of this thread
+/// (model::set_user_effects), every parameter with a range fitted.
 const CandidateSpec* find_candidate(const std::string& name);
+/// Names of every candidate: candidate_table() then the user-defined effects.
+std::vector<std::string> candidate_names();
 
 /// Physical values of the model's global parameters.
 struct PhysicsValues {
@@ -100,7 +106,8 @@ class WindowSimulator {
   };
 
   /// Simulates samples [first, first + n) (absolute sample indices) into out[0..n). `carry` is the
-  /// free transient of the previous impact at the window start (zero if none).
+  /// free transient of the previous impact at the window start (zero if none). A user-defined force
+  /// that turns non-finite gives a window of 1e10 (see the .cpp).
   void simulate(std::uint64_t first, std::size_t n, const Impact& impact, const ModelState& carry,
                 double* out, End& end) const;
 
@@ -116,6 +123,8 @@ class WindowSimulator {
     std::complex<double> x[kSteadyOrders];      ///< phasors of x_ss for mesh orders 1..kSteadyOrders
   };
   Steady steady_state(double mesh_hz) const;
+  void simulate_unguarded(std::uint64_t first, std::size_t n, const Impact& impact, const ModelState& carry,
+                          double* out, End& end) const;
   /// Δc(θ), e(θ), de/dθ summed over the effects (phasors when exact, else the effects' hooks).
   /// `dcs`: the static part of Δc (multiplies q_s; equal to dc unless an effect relieves it).
   void mesh_terms(double th, double& dc, double& e, double& de, double& dcs) const;

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 #include <numbers>
+#include <sstream>
 #include <stdexcept>
 
 #include <unsupported/Eigen/NonLinearOptimization>
@@ -26,7 +27,11 @@ std::vector<GlobalParameter> ModelFitter::layout(const std::vector<std::string>&
   for (const auto& name : effects) {
     const CandidateSpec* c = find_candidate(name);
     if (c == nullptr) throw std::invalid_argument("effect '" + name + "' cannot be fitted (not a diagnosable dynamics effect)");
-    for (const auto& f : c->free) g.push_back({name + "." + f.key, name, f.key, f.transform, f.lo, f.hi});
+    for (const auto& f : c->free) {
+      const auto it = settings_.find(name + "." + f.key);
+      if (it != settings_.end() && it->second.fixed) continue;
+      g.push_back({name + "." + f.key, name, f.key, f.transform, f.lo, f.hi});
+    }
     mesh = mesh || c->mesh_periodic;
   }
   if (mesh) g.push_back({"mesh_phase_rad", "", "", Transform::kAngle, 0.0, 0.0});
@@ -60,7 +65,52 @@ PhysicsValues ModelFitter::physics(const std::vector<GlobalParameter>& layout, c
       it->second[g.key] = v;
     }
   }
+  // Fixed settings: into the effects fitted above, and effects with every parameter fixed (absent
+  // from the layout) added with their fixed values (they belong to every model; see the header).
+  for (const auto& [name, s] : settings_) {
+    if (!s.fixed) continue;
+    const auto dot = name.find('.');
+    const std::string effect = name.substr(0, dot), key = name.substr(dot + 1);
+    auto it = std::find_if(p.effects.begin(), p.effects.end(), [&](const auto& e) { return e.first == effect; });
+    if (it == p.effects.end()) {
+      p.effects.push_back({effect, find_candidate(effect)->fixed});
+      it = p.effects.end() - 1;
+    }
+    it->second[key] = s.value;
+  }
+  for (auto& [effect, values] : p.effects) {
+    // Every free key of a fully fixed effect must now have a value.
+    for (const auto& f : find_candidate(effect)->free)
+      if (values.find(f.key) == values.end())
+        throw std::logic_error("effect " + effect + ": parameter " + f.key + " neither fitted nor fixed");
+  }
   return p;
+}
+
+void ModelFitter::set_parameter_settings(const std::map<std::string, ParameterSetting>& settings) {
+  for (const auto& [name, s] : settings) {
+    const auto dot = name.find('.');
+    if (dot == std::string::npos) throw std::invalid_argument("'" + name + "' is not <effect>.<key>");
+    const std::string effect = name.substr(0, dot), key = name.substr(dot + 1);
+    const CandidateSpec* c = find_candidate(effect);
+    if (c == nullptr) throw std::invalid_argument("effect '" + effect + "' cannot be fitted");
+    const FreeParameter* f = nullptr;
+    std::string known;
+    for (const auto& q : c->free) {
+      if (q.key == key) f = &q;
+      known += (known.empty() ? "" : ", ") + q.key;
+    }
+    if (f == nullptr)
+      throw std::invalid_argument("effect " + effect + ": '" + key + "' is not a fitted parameter (fitted: " + known + ")");
+    const bool angle = f->transform == Transform::kAngle;
+    if (!std::isfinite(s.value) || (!angle && (s.value < f->lo || s.value > f->hi))) {
+      std::ostringstream o;
+      o << "effect " << effect << ": " << key << " = " << s.value << " is outside the fit range [" << f->lo << ", "
+        << f->hi << "]";
+      throw std::invalid_argument(o.str());
+    }
+  }
+  settings_ = settings;
 }
 
 WindowSimulator::Impact ModelFitter::impact(std::size_t w, const FitParams& p) const {
@@ -427,6 +477,7 @@ FitResult ModelFitter::fit(const std::vector<std::string>& effects, const FitRes
       const CandidateSpec* c = find_candidate(L[i].effect);
       for (const auto& f : c->free)
         if (f.key == L[i].key) start = f.start;
+      if (const auto it = settings_.find(L[i].name); it != settings_.end()) start = it->second.value;
     }
     double u = to_u(L[i].transform, L[i].lo, L[i].hi, start);
     if (warm != nullptr)

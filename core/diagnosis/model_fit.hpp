@@ -20,6 +20,7 @@
 #pragma once
 
 #include <Eigen/Dense>
+#include <map>
 #include <span>
 #include <string>
 #include <vector>
@@ -80,6 +81,18 @@ class ModelFitter {
 
   std::vector<GlobalParameter> layout(const std::vector<std::string>& effects) const;
 
+  /// A parameter value given by the user (`--with NAME:key=value`, `key=value!`): a start for the
+  /// optimiser, or fixed (left out of the fit; the effect keeps that value in every model).
+  struct ParameterSetting {
+    double value = 0.0;
+    bool fixed = false;
+  };
+  /// Settings by "<effect>.<key>". Throws std::invalid_argument for an effect that is not a
+  /// candidate, an unknown key or a value outside the fit range. A fixed setting must belong to an
+  /// effect that is in every model fitted afterwards (the starting model: diagnose never removes it).
+  void set_parameter_settings(const std::map<std::string, ParameterSetting>& settings);
+  const std::map<std::string, ParameterSetting>& parameter_settings() const { return settings_; }
+
   /// Fits a model. `warm` (optional): a previous result whose global values (by name) and nuisances
   /// start this fit. `start_overrides`: starting values by global name (e.g. a second mode's
   /// frequency from the residual spectrum). Throws std::invalid_argument for an unknown effect.
@@ -116,6 +129,7 @@ class ModelFitter {
   std::span<const double> y_;
   Segmentation seg_;
   model::RigParameters rig_;
+  std::map<std::string, ParameterSetting> settings_;
 };
 
 }  // namespace ridgewatch::diagnosis

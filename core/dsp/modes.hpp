@@ -21,9 +21,13 @@
 //     the ridge least-squares estimates, and the backbone (backbone.hpp).
 //  4. All modes in the band are refined together by the maximum-likelihood fit of ml_fit.hpp; a mode
 //     whose joint fit fails is refitted alone in a band around it.
-//  5. Status rules ("ok is a promise"): estimators that disagree beyond their uncertainties, a ridge
-//     whose frequency drifts within its window (it left the mode), zeta <= 0 or >= 1 (values null),
-//     a frequency outside the band: not ok, with a note.
+//  5. Status rules ("ok is a promise"): estimators that disagree beyond their uncertainties (no extra
+//     room when zeta varies along the decay), a ridge whose frequency drifts within its window (it left
+//     the mode), an ml fit that left its spectral peak, a backbone scattering > 25 % that no amplitude
+//     law explains (beating of an unresolved neighbour), a close detected peak left out of the fit,
+//     zeta <= 0 or >= 1 (values null), a frequency outside the band: not ok, with a note. A varying
+//     zeta is stated in the note with its backbone range. A mode the user's eta0 cannot read stays in
+//     the joint fit (read at the automatic eta0) and is reported, not ok.
 #pragma once
 
 #include <cstddef>

@@ -7,8 +7,10 @@
 //
 // Adding an effect: write core/model/effects/<name>.cpp defining `EffectDescriptor
 // <name>_descriptor()`, then add its declaration and one table entry in core/model/effect_registry.cpp.
+// Without C++: a force expression in a rig file (core/model/custom_effect.hpp).
 #pragma once
 
+#include <functional>
 #include <map>
 #include <memory>
 #include <optional>
@@ -44,6 +46,7 @@ struct MeshState {
   double x_m = 0.0;             ///< dynamic deflection: q minus the static deflection q_s
   double v_m_per_s = 0.0;       ///< q̇
   double deflection_m = 0.0;    ///< total mesh deflection δ = q_s + x + e (e: transmission error)
+  double t_since_impact_s = 0.0;  ///< time since the onset of the latest impact pulse (t_s before the first)
 };
 
 /// A further linear mode (modal superposition), excited by the impacts and seen by the sensor.
@@ -105,7 +108,9 @@ struct EffectDescriptor {
   std::string signature;    ///< what it looks like in the measured signal
   std::vector<EffectParameter> parameters;
   /// `values` holds every parameter key, checked against the bounds; `rig` is validated.
-  std::unique_ptr<Effect> (*create)(const EffectValues& values, const RigParameters& rig) = nullptr;
+  /// A function (not a plain pointer) so that a user-defined effect (core/model/custom_effect.hpp)
+  /// can carry its compiled expression.
+  std::function<std::unique_ptr<Effect>(const EffectValues& values, const RigParameters& rig)> create;
 };
 
 /// A requested effect: name plus the parameters that differ from the defaults.

@@ -38,9 +38,35 @@ const std::vector<EffectDescriptor>& effect_catalogue() {
   return catalogue;
 }
 
-const EffectDescriptor* find_effect(const std::string& name) {
+namespace {
+struct UserRegistry {
+  std::vector<UserEffect> effects;
+  std::uint64_t generation = 0;
+};
+UserRegistry& user_registry() {
+  thread_local UserRegistry r;
+  return r;
+}
+}  // namespace
+
+void set_user_effects(std::vector<UserEffect> effects) {
+  UserRegistry& r = user_registry();
+  r.effects = std::move(effects);
+  ++r.generation;
+}
+const std::vector<UserEffect>& user_effects() { return user_registry().effects; }
+std::uint64_t user_effects_generation() { return user_registry().generation; }
+
+const EffectDescriptor* find_catalogue_effect(const std::string& name) {
   for (const auto& d : effect_catalogue())
     if (d.name == name) return &d;
+  return nullptr;
+}
+
+const EffectDescriptor* find_effect(const std::string& name) {
+  if (const EffectDescriptor* d = find_catalogue_effect(name)) return d;
+  for (const auto& u : user_effects())
+    if (u.descriptor.name == name) return &u.descriptor;
   return nullptr;
 }
 
@@ -49,6 +75,7 @@ ResolvedEffect resolve_effect(const EffectSpec& spec) {
   if (d == nullptr) {
     std::string known;
     for (const auto& e : effect_catalogue()) known += (known.empty() ? "" : ", ") + e.name;
+    for (const auto& u : user_effects()) known += ", " + u.descriptor.name;
     throw std::invalid_argument("unknown effect '" + spec.name + "' (known: " + known + ")");
   }
   ResolvedEffect r{d, {}};

@@ -111,9 +111,20 @@ class Dynamics {
     return INFINITY;
   }
 
+  /// Time since the onset of the latest pulse at or before t (t itself before the first). The pulses
+  /// from `cursor_` on have not ended before the current step, so the latest onset is the last of
+  /// them at or before t, or the one before `cursor_`.
+  double time_since_impact(double t_s) const {
+    if (impacts_ == nullptr) return t_s;
+    std::size_t k = cursor_;
+    while (k < impacts_->size() && (*impacts_)[k].t_s <= t_s) ++k;
+    return k == 0 ? t_s : t_s - (*impacts_)[k - 1].t_s;
+  }
+
   MeshState mesh_state(double t_s, const State& s) const {
     MeshState m;
     m.t_s = t_s;
+    m.t_since_impact_s = time_since_impact(t_s);
     m.mesh_angle_rad = teeth_ * s[kTheta];
     m.x_m = s[kX];
     m.v_m_per_s = s[kV];
@@ -138,6 +149,7 @@ class Dynamics {
     }
     MeshState m;
     m.t_s = t_s;
+    m.t_since_impact_s = time_since_impact(t_s);
     m.mesh_angle_rad = mesh_angle;
     m.x_m = s[kX];
     m.v_m_per_s = s[kV];

@@ -1,0 +1,185 @@
+#include "core/model/custom_effect.hpp"
+
+#include <muParser.h>
+
+#include <cctype>
+#include <cmath>
+#include <memory>
+#include <set>
+#include <sstream>
+
+#include "core/model/effect_registry.hpp"
+
+namespace ridgewatch::model {
+
+const std::vector<std::string>& custom_effect_variables() {
+  static const std::vector<std::string> vars = {"x", "v", "theta", "t", "t_abs"};
+  return vars;
+}
+
+namespace {
+
+bool is_identifier(const std::string& s) {
+  if (s.empty() || !(std::islower(static_cast<unsigned char>(s[0])) || s[0] == '_')) return false;
+  for (char c : s)
+    if (!(std::islower(static_cast<unsigned char>(c)) || std::isdigit(static_cast<unsigned char>(c)) || c == '_')) return false;
+  return true;
+}
+
+std::string num(double v) {
+  std::ostringstream o;
+  o << v;
+  return o.str();
+}
+
+/// A compiled expression with its variables bound to members (muparser keeps their addresses: the
+/// object is never copied or moved once compiled). Eval runs muparser's byte code: the text is parsed
+/// once, on the first evaluation.
+class Expression {
+ public:
+  Expression(const std::string& text, const std::vector<EffectParameter>& params, const EffectValues& values)
+      : params_(params.size()) {
+    parser_.DefineVar("x", &x_);
+    parser_.DefineVar("v", &v_);
+    parser_.DefineVar("theta", &theta_);
+    parser_.DefineVar("t", &t_);
+    parser_.DefineVar("t_abs", &t_abs_);
+    for (std::size_t i = 0; i < params.size(); ++i) {
+      params_[i] = values.at(params[i].key);
+      parser_.DefineVar(params[i].key, &params_[i]);
+    }
+    parser_.SetExpr(text);
+  }
+  Expression(const Expression&) = delete;
+  Expression& operator=(const Expression&) = delete;
+
+  double eval(double x, double v, double theta, double t, double t_abs) const {
+    x_ = x;
+    v_ = v;
+    theta_ = theta;
+    t_ = t;
+    t_abs_ = t_abs;
+    return parser_.Eval();
+  }
+
+ private:
+  mutable double x_ = 0.0, v_ = 0.0, theta_ = 0.0, t_ = 0.0, t_abs_ = 0.0;
+  std::vector<double> params_;  // sized once: the addresses stay valid
+  mu::Parser parser_;
+};
+
+class CustomForce final : public Effect {
+ public:
+  CustomForce(std::string name, const std::string& text, const std::vector<EffectParameter>& params,
+              const EffectValues& values)
+      : name_(std::move(name)), expr_(text, params, values) {}
+  // The user's force is added to the mesh force; the simulator subtracts resisting forces.
+  double resisting_force_n(const MeshState& s, int) const override {
+    const double f = expr_.eval(s.x_m, s.v_m_per_s, s.mesh_angle_rad, s.t_since_impact_s, s.t_s);
+    if (!std::isfinite(f)) {
+      std::ostringstream o;
+      o << "effect " << name_ << ": force is not finite (" << f << ") at x = " << s.x_m << " m, v = " << s.v_m_per_s
+        << " m/s, theta = " << s.mesh_angle_rad << " rad, t = " << s.t_since_impact_s << " s";
+      throw std::domain_error(o.str());
+    }
+    return -f;
+  }
+
+ private:
+  std::string name_;
+  Expression expr_;
+};
+
+}  // namespace
+
+EffectDescriptor make_custom_effect(const CustomEffectDefinition& def) {
+  const std::string who = "effect " + (def.name.empty() ? std::string("(unnamed)") : def.name);
+  auto fail = [&](const std::string& where, const std::string& what, int pos = 0) {
+    throw CustomEffectError(who + ": " + where + ": " + what, where, pos);
+  };
+  if (!is_identifier(def.name)) fail("name", "'" + def.name + "' must be lower case letters, digits and _ (starting with a letter or _)");
+  if (find_catalogue_effect(def.name) != nullptr)
+    fail("name", "'" + def.name + "' is a catalogue effect; choose another name");
+  std::set<std::string> keys;
+  for (const auto& p : def.parameters) {
+    const std::string where = "parameters." + p.key;
+    if (!is_identifier(p.key)) fail(where, "'" + p.key + "' must be lower case letters, digits and _ (starting with a letter or _)");
+    for (const auto& v : custom_effect_variables())
+      if (p.key == v) fail(where, "'" + p.key + "' is a variable of the expression; choose another name");
+    if (p.key.rfind("_", 0) == 0) fail(where, "names starting with _ are muparser's constants");
+    if (!keys.insert(p.key).second) fail(where, "given twice");
+    if (!std::isfinite(p.min_value) || !std::isfinite(p.max_value) || !(p.min_value <= p.max_value))
+      fail(where, "min must be <= max, both finite (got " + num(p.min_value) + ", " + num(p.max_value) + ")");
+    if (!(p.default_value >= p.min_value && p.default_value <= p.max_value))
+      fail(where, "default " + num(p.default_value) + " is outside [" + num(p.min_value) + ", " + num(p.max_value) + "]");
+    if (p.null_value && !(*p.null_value >= p.min_value && *p.null_value <= p.max_value))
+      fail(where, "null " + num(*p.null_value) + " is outside [" + num(p.min_value) + ", " + num(p.max_value) + "]");
+  }
+  for (const auto& [key, value] : def.starts) {
+    const EffectParameter* p = nullptr;
+    for (const auto& q : def.parameters)
+      if (q.key == key) p = &q;
+    if (p == nullptr) fail("parameters." + key, "start given for an unknown parameter");
+    if (!(value >= p->min_value && value <= p->max_value))
+      fail("parameters." + key, "start " + num(value) + " is outside [" + num(p->min_value) + ", " + num(p->max_value) + "]");
+  }
+  if (def.force.find_first_not_of(" \t\n") == std::string::npos) fail("force", "empty expression");
+
+  // Compile and evaluate on a grid of states: the parameters at their defaults, then all at their
+  // minima, then all at their maxima. The states span a typical free response of the paper's rig
+  // (x up to 1e-5 m, v up to 0.05 m/s) with both signs and zero, two mesh angles and two times.
+  std::vector<EffectValues> sets(3);
+  for (const auto& p : def.parameters) {
+    sets[0][p.key] = p.default_value;
+    sets[1][p.key] = p.min_value;
+    sets[2][p.key] = p.max_value;
+  }
+  for (const auto& values : sets) {
+    try {
+      const Expression e(def.force, def.parameters, values);
+      for (double x : {-1e-5, 0.0, 1e-5})
+        for (double v : {-0.05, 0.0, 0.05})
+          for (double th : {0.0, 2.0})
+            for (double t : {0.0, 0.01}) {
+              const double f = e.eval(x, v, th, t, t + 1.0);
+              if (!std::isfinite(f)) {
+                std::ostringstream o;
+                o << "'" << def.force << "' is not finite (" << f << ") at x = " << x << ", v = " << v << ", theta = " << th
+                  << ", t = " << t << " with";
+                for (const auto& [k, val] : values) o << " " << k << " = " << val;
+                fail("force", o.str());
+              }
+            }
+    } catch (const mu::Parser::exception_type& e) {
+      // muparser's positions are 0-based character offsets into the expression.
+      const int col = e.GetPos() >= 0 ? e.GetPos() + 1 : 0;
+      std::string msg = e.GetMsg();
+      std::ostringstream o;
+      o << "'" << def.force << "'";
+      if (col > 0) o << " at column " << col;
+      if (!e.GetToken().empty()) o << " ('" << e.GetToken() << "')";
+      o << ": " << msg;
+      if (e.GetCode() == mu::ecUNASSIGNABLE_TOKEN) {
+        o << " (variables: x, v, theta, t, t_abs; parameters:";
+        for (const auto& p : def.parameters) o << " " << p.key;
+        o << ")";
+      }
+      fail("force", o.str(), col);
+    }
+  }
+
+  EffectDescriptor d;
+  d.name = def.name;
+  d.kind = EffectKind::kDynamics;
+  d.explanation = "user-defined force on the mesh coordinate: " + def.force + " (N)";
+  d.signature = "defined by its expression";
+  d.parameters = def.parameters;
+  const std::string name = def.name, text = def.force;
+  const std::vector<EffectParameter> params = def.parameters;
+  d.create = [name, text, params](const EffectValues& values, const RigParameters&) -> std::unique_ptr<Effect> {
+    return std::make_unique<CustomForce>(name, text, params, values);
+  };
+  return d;
+}
+
+}  // namespace ridgewatch::model
