@@ -245,11 +245,12 @@ TEST(PipelineIndep, EstimateDoesNotDependOnTheMaximumOnceItCoversTheDecay) {
 //    854 Hz mode's band, the 3rd 975 -> 1268 Hz out of it), mains hum at 50 Hz with harmonics up to
 //    the 20th (the 17th, 850 Hz, sits on the mode), white noise and sensor spikes. The issue's
 //    acceptance: at least 97 % of the impacts found, no false ones, every ok event within 10 % of the
-//    true zeta, at least 60 % ok. Met: detection, false, ok accuracy. Not met yet: the ok rate
-//    (measured 42 %): while the 2nd mesh harmonic sweeps through the fit band the line is not
-//    removed, the intervals widen beyond max_ci_ratio and those events are low_snr (which keeps ok
-//    right: with a 10 % limit on the interval instead, ok events were off by up to 29 %). The test
-//    holds the measured rate so that it cannot silently fall.
+//    true zeta, at least 60 % ok. Met: 861 of 861 found, 0 false, every ok within 8.2 %, 61.4 % ok.
+//    While the 2nd mesh harmonic sweeps towards and through the fit band, the analyzer's ML fit adds a
+//    nearly undamped component at the line (impact_analyzer.hpp, step 4) when the single-mode interval
+//    is too wide; while the line sits within one DFT bin of the mode (the last ~1.5 s) it is not
+//    resolved and those events stay low_snr (without that separation rule, 624 of 861 were ok and two
+//    of them 10.1 and 10.9 % off).
 indep::RigSpec nuisance_spec(std::uint64_t seed) {
   indep::RigSpec s;
   s.fs_hz = 51200.0;
@@ -280,6 +281,7 @@ TEST(PipelineIndep, NuisancesFoundAndOkEventsRight) {
   const std::vector<std::uint64_t> seeds = {1, 2, 3};
 #endif
   std::size_t impacts = 0, found = 0, false_events = 0, events = 0, ok = 0;
+  double max_err = 0.0;
   for (const std::uint64_t seed : seeds) {
     const indep::RigRecord rec = indep::make_rig_record(nuisance_spec(seed));
     PipelineConfig cfg;
@@ -299,6 +301,7 @@ TEST(PipelineIndep, NuisancesFoundAndOkEventsRight) {
       hit[static_cast<std::size_t>(k)] = true;
       if (e.status != ImpactStatus::ok) continue;
       ++ok;
+      max_err = std::max(max_err, std::abs(e.zeta / rec.zeta[static_cast<std::size_t>(k)] - 1.0));
       EXPECT_NEAR(e.zeta / rec.zeta[static_cast<std::size_t>(k)], 1.0, 0.10)
           << "seed " << seed << " t = " << e.t_s << " f " << e.f_hz;
     }
@@ -306,11 +309,17 @@ TEST(PipelineIndep, NuisancesFoundAndOkEventsRight) {
     found += static_cast<std::size_t>(std::count(hit.begin(), hit.end(), true));
   }
   std::cout << "nuisances: " << found << " of " << impacts << " impacts found, " << false_events << " false, "
-            << ok << " of " << events << " events ok\n";
+            << ok << " of " << events << " events ok, largest |zeta error| of an ok event " << 100.0 * max_err << " %\n";
   EXPECT_GE(static_cast<double>(found), 0.97 * static_cast<double>(impacts));
   EXPECT_EQ(false_events, 0u);
-  // Measured 0.42 (3 seeds): the issue asks for 0.60 (see above).
-  EXPECT_GE(static_cast<double>(ok), 0.38 * static_cast<double>(events));
+  // The issue asks for 0.60. Measured 529 of 861 = 0.614 over the 3 seeds (seed 1: 167 of 287 = 0.58,
+  // seed 2: 0.62, seed 3: 0.64; 0.42 before the line component of the ML fit); the sanitizer builds run
+  // seed 1 alone, held at 0.55. Largest |zeta error| of an ok event 8.2 % (limit 10 %).
+#ifdef RIDGEWATCH_SANITIZED
+  EXPECT_GE(static_cast<double>(ok), 0.55 * static_cast<double>(events));
+#else
+  EXPECT_GE(static_cast<double>(ok), 0.60 * static_cast<double>(events));
+#endif
 }
 
 // ---------------------------------------------------------------------------------------------------

@@ -4,6 +4,7 @@
 
 #include <Eigen/Dense>
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <complex>
 #include <cstring>
@@ -648,7 +649,8 @@ void SpectralModeFitter::Impl::evaluate_bins(const double* x, std::size_t k_lo, 
   }
 }
 
-SpectralModeFitter::SpectralModeFitter(std::size_t segment_samples, double sample_rate_hz, std::size_t max_bins)
+SpectralModeFitter::SpectralModeFitter(std::size_t segment_samples, double sample_rate_hz, std::size_t max_bins,
+                                       std::size_t fit_bins)
     : impl_(std::make_unique<Impl>()) {
   if (segment_samples < 16 || segment_samples > (std::size_t{1} << 28))
     throw std::invalid_argument("SpectralModeFitter: segment_samples must be in [16, 2^28]");
@@ -674,8 +676,10 @@ SpectralModeFitter::SpectralModeFitter(std::size_t segment_samples, double sampl
     impl_->tw[2 * m] = t.real();
     impl_->tw[2 * m + 1] = t.imag();
   }
-  // Room for every bin, so that fits never reallocate (real-time callers).
-  const std::size_t all_bins = segment_samples / 2 + 1;
+  // Room for every bin a fit can use (fit_bins or max_bins when the caller bounds it, else all), so
+  // that fits never reallocate (real-time callers).
+  const std::size_t bound = fit_bins > 0 ? fit_bins : max_bins;
+  const std::size_t all_bins = bound > 0 ? std::min(bound, segment_samples / 2 + 1) : segment_samples / 2 + 1;
   Problem& p = impl_->p;
   p.data.reserve(all_bins);
   p.w.reserve(all_bins);
@@ -785,9 +789,20 @@ void SpectralModeFitter::fit(std::span<const double> segment, std::span<const Mo
     // diagonal: the factorisation loses nothing to the parameters' different units).
     Vec d(n_par), rhs(n_par);
     Info scaled(n_par, n_par);
+    // A component that does not decay within the segment (sigma T < 1e-6: a steady line fitted as a
+    // mode, whose ln zeta ran off towards -infinity where the RSS no longer depends on it) has no
+    // determined damping; the covariance of the other parameters is taken with it held at zero (its
+    // row and column decoupled), and its own interval is null (status fit_failed).
+    std::array<bool, 64> undamped{};
+    for (int j = 0; j < p.modes && kPerMode * j + 1 < 64; ++j) {
+      const double zeta = std::exp(x[kPerMode * j + 1]);
+      undamped[static_cast<std::size_t>(kPerMode * j + 1)] = kTwoPi * x[kPerMode * j] * zeta * seg_s < 1e-6;
+    }
+    auto held = [&](int i) { return i < 64 && undamped[static_cast<std::size_t>(i)]; };
     for (int i = 0; i < n_par; ++i) d[i] = info(i, i) > 0 ? std::sqrt(info(i, i)) : 1.0;
     for (int i = 0; i < n_par; ++i)
-      for (int k = 0; k < n_par; ++k) scaled(i, k) = info(i, k) / (d[i] * d[k]);
+      for (int k = 0; k < n_par; ++k)
+        scaled(i, k) = held(i) || held(k) ? (i == k ? 1.0 : 0.0) : info(i, k) / (d[i] * d[k]);
     const Eigen::LDLT<Info> ldlt(scaled);
     Vec inv_diag(n_par);  // (A^-1)_ii, from the well-posedness loop below when it completes
     bool have_inv_diag = false;
@@ -858,7 +873,7 @@ void SpectralModeFitter::fit(std::span<const double> segment, std::span<const Mo
       e.f_hz = x[kPerMode * j];
       e.zeta = std::exp(x[kPerMode * j + 1]);
       e.f_sd_hz = std::sqrt(var_f);
-      const double sd_u = std::sqrt(var_u);  // sd of ln zeta
+      const double sd_u = held(kPerMode * j + 1) ? NAN : std::sqrt(var_u);  // sd of ln zeta
       e.zeta_sd = e.zeta * sd_u;
       e.zeta_ci95_lo = e.zeta * std::exp(-1.959963984540054 * sd_u);
       e.zeta_ci95_hi = e.zeta * std::exp(1.959963984540054 * sd_u);

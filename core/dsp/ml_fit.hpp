@@ -10,6 +10,9 @@
 // it (hum, out-of-band modes), and white noise stays white and independent across bins. A low-order
 // complex polynomial in k ("residual terms", as in modal analysis) absorbs the smooth in-band tails of
 // modes outside the band. Free parameters per mode: f_j (damped frequency), ln zeta_j, Re C_j, Im C_j.
+// A component that does not decay within the segment (sigma T < 1e-6: a steady line fitted as a
+// mode) has no determined damping: its interval is null (status fit_failed) and the other parameters'
+// uncertainties are taken with it held undamped.
 // Optimiser: Levenberg-Marquardt with an analytic Jacobian: for up to 12 parameters an allocation-free
 // one on the normal equations with Marquardt scaling, for larger problems Eigen's MINPACK port (QR).
 #pragma once
@@ -50,7 +53,10 @@ class SpectralModeFitter {
   /// for the Goertzel evaluation (<= 2 log2 segment_samples, the rule fit() applies), no FFT plan is
   /// made (planning an awkward length, e.g. a prime, costs milliseconds at start-up); a fit with more
   /// bins then still works, through the Goertzel evaluation.
-  SpectralModeFitter(std::size_t segment_samples, double sample_rate_hz, std::size_t max_bins = 0);
+  /// fit_bins > 0: room reserved for the bins of one fit (default: max_bins, or every bin when
+  /// max_bins is 0); a fit over more bins than reserved still works but allocates.
+  SpectralModeFitter(std::size_t segment_samples, double sample_rate_hz, std::size_t max_bins = 0,
+                     std::size_t fit_bins = 0);
   ~SpectralModeFitter();
   SpectralModeFitter(const SpectralModeFitter&) = delete;
   SpectralModeFitter& operator=(const SpectralModeFitter&) = delete;

@@ -493,6 +493,61 @@ struct MorletCwt<Real>::Impl {
 };
 
 template <typename Real>
+typename MorletCwt<Real>::Layout MorletCwt<Real>::layout(const MorletCwtConfig& c) {
+  // The same arithmetic as Impl's truncation(), relative_band_width() and band_limit().
+  double f_min = c.frequencies_hz.empty() ? 1.0 : c.frequencies_hz.front(), f_max = f_min;
+  for (double f : c.frequencies_hz) {
+    f_min = std::min(f_min, f);
+    f_max = std::max(f_max, f);
+  }
+  const double truncation = c.truncation != 0.0 ? c.truncation
+                            : c.band_limited    ? MorletCwtConfig::kBandLimitedTruncation
+                                                : MorletCwtConfig::kFullRateTruncation;
+  const double halfwidth_sd = std::sqrt(2.0 * std::log(1.0 / truncation));
+  const double rel_r = halfwidth_sd / c.eta0;
+  const double rel_width = (1.0 + rel_r) - std::max(1.0 - rel_r, 0.0);
+  Layout out;
+  auto band_limit = [&] {
+    if (out.decimation == 1) return c.sample_rate_hz / 2;
+    const double f = static_cast<double>(out.short_length - 1) * c.sample_rate_hz /
+                     (static_cast<double>(out.fft_length) * rel_width);
+    return std::min(c.sample_rate_hz / 2, f);
+  };
+  // Zero padding so that the circular convolution never wraps: the kernel at the lowest frequency
+  // falls below the truncation level c * s seconds from its centre.
+  const double s_max = MorletCwt::kernel_time_sd_s(c.eta0, f_min);
+  auto pad = static_cast<std::size_t>(
+      std::ceil(halfwidth_sd * s_max * c.sample_rate_hz)) + 2;
+  // When eta0 < band_halfwidth_sd the kept band reaches DC, where the analytic filter jumps by
+  // 2 exp(-eta0^2/2); its kernel then has a slowly decaying (1/tau) tail that no Gaussian-sized padding
+  // contains. Padding by a further max_samples keeps the wrapped part of that tail below ~3e-6 of
+  // max |W| even for a DC-dominated record (eta0 = 5; measured in test_morlet_cwt).
+  if (c.eta0 < halfwidth_sd) pad += c.max_samples;
+  const std::size_t needed = c.max_samples + pad;
+
+  if (c.band_limited) {
+    // Largest R (2,3,5,7-smooth, so that L = D R stays a fast r2c length) for which the widest band,
+    // that of f_max, fits into D = L / R bins; D itself is the next 2,3,5-smooth length (FFTW's
+    // fastest sizes) holding the padded signal.
+    const double r_upper = std::floor(c.sample_rate_hz / (rel_width * f_max));
+    std::size_t r = prev_fast_size(static_cast<std::size_t>(std::max(1.0, r_upper)));
+    for (;;) {
+      out.decimation = r;
+      out.short_length = next_fast_size((needed + r - 1) / r);
+      out.fft_length = out.short_length * r;
+      if (r == 1 || band_limit() >= f_max) break;
+      r = prev_fast_size(r - 1);
+    }
+  } else {
+    out.decimation = 1;
+    out.fft_length = next_fast_size(needed);
+    out.short_length = out.fft_length;
+  }
+
+  return out;
+}
+
+template <typename Real>
 MorletCwt<Real>::MorletCwt(MorletCwtConfig config) : impl_(std::make_unique<Impl>()) {
   auto& c = config;
   require(std::isfinite(c.sample_rate_hz) && c.sample_rate_hz > 0, "sample_rate_hz must be > 0");
@@ -520,36 +575,10 @@ MorletCwt<Real>::MorletCwt(MorletCwtConfig config) : impl_(std::make_unique<Impl
                                            : MorletCwtConfig::kFullRateTruncation;
   im.band_halfwidth_sd = std::sqrt(2.0 * std::log(1.0 / im.truncation));
 
-  // Zero padding so that the circular convolution never wraps: the kernel at the lowest frequency
-  // falls below the truncation level c * s seconds from its centre.
-  const double s_max = MorletCwt::kernel_time_sd_s(im.cfg.eta0, f_min);
-  auto pad = static_cast<std::size_t>(
-      std::ceil(im.band_halfwidth_sd * s_max * im.cfg.sample_rate_hz)) + 2;
-  // When eta0 < band_halfwidth_sd the kept band reaches DC, where the analytic filter jumps by
-  // 2 exp(-eta0^2/2); its kernel then has a slowly decaying (1/tau) tail that no Gaussian-sized padding
-  // contains. Padding by a further max_samples keeps the wrapped part of that tail below ~3e-6 of
-  // max |W| even for a DC-dominated record (eta0 = 5; measured in test_morlet_cwt).
-  if (im.cfg.eta0 < im.band_halfwidth_sd) pad += im.cfg.max_samples;
-  const std::size_t needed = im.cfg.max_samples + pad;
-
-  if (im.cfg.band_limited) {
-    // Largest R (2,3,5,7-smooth, so that L = D R stays a fast r2c length) for which the widest band,
-    // that of f_max, fits into D = L / R bins; D itself is the next 2,3,5-smooth length (FFTW's
-    // fastest sizes) holding the padded signal.
-    const double r_upper = std::floor(im.cfg.sample_rate_hz / (im.relative_band_width() * f_max));
-    std::size_t r = prev_fast_size(static_cast<std::size_t>(std::max(1.0, r_upper)));
-    for (;;) {
-      im.dec = r;
-      im.short_len = next_fast_size((needed + r - 1) / r);
-      im.fft_len = im.short_len * r;
-      if (r == 1 || im.band_limit() >= f_max) break;
-      r = prev_fast_size(r - 1);
-    }
-  } else {
-    im.dec = 1;
-    im.fft_len = next_fast_size(needed);
-    im.short_len = im.fft_len;
-  }
+  const Layout lay = layout(im.cfg);
+  im.dec = lay.decimation;
+  im.fft_len = lay.fft_length;
+  im.short_len = lay.short_length;
 
   std::lock_guard<std::mutex> lock(fftw_planner_mutex());
   using F = typename Impl::F;

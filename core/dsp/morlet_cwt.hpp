@@ -164,6 +164,16 @@ class MorletCwt {
   /// Effective Gaussian truncation level (the configured one, or the mode default when configured as 0).
   double truncation() const;
 
+  /// The transform's sizes for a configuration (what the constructor picks; the configuration is not
+  /// validated): input samples per column, the FFT length and the short (decimated) length. Cheap, no
+  /// allocation: callers that compare several configurations need not make the plans.
+  struct Layout {
+    std::size_t decimation = 1;
+    std::size_t fft_length = 0;
+    std::size_t short_length = 0;
+  };
+  static Layout layout(const MorletCwtConfig& config);
+
   /// Time standard deviation of the kernel at frequency f: s = eta0 / (2 pi f), in seconds.
   static double kernel_time_sd_s(double eta0, double f_hz);
   /// Frequency standard deviation of the filter |Psi_f| at frequency f: f / eta0, in Hz.

@@ -16,6 +16,9 @@ constexpr double kTwoPi = 2.0 * std::numbers::pi;
 // A ridge that strays from the mode after its power fell this far below its peak (15 dB) marks the
 // end of the free response (the motion stopped), not a lost ridge.
 constexpr double kEndedPowerDrop = 0.0316;
+// A line component fitted closer to the mode than this many DFT bins of the segment is not resolved
+// (step 4).
+constexpr double kLineSepBins = 1.0;
 
 ImpactStatus from_estimate(dsp::EstimateStatus s) {
   switch (s) {
@@ -94,31 +97,29 @@ ImpactAnalyzer::ImpactAnalyzer(const ImpactAnalyzerConfig& cfg, double fs) {
   cc.frequencies_hz = rows_hz_;
   cc.max_samples = max_samples();
   cc.band_limited = true;
-  cwt_ = std::make_unique<dsp::MorletCwt<float>>(cc);
+  // Only the layouts here (the transform and its plans are made by prepare()).
+  const auto full_layout = dsp::MorletCwt<float>::layout(cc);
+  cwt_cfg_ = cc;
+  fft_len_ = full_layout.fft_length;
   in_dec_ = 1;
   // Half rate (header comment, step 0) when the rate bound holds and the copy keeps the full-rate
   // grids: the CWT's column step (an even full-rate decimation) and the complete window's ML segment
   // (an even length whose half the copy holds with the onset at the pretrigger), so that the same
   // columns and DFT bins are analysed.
-  if (decimates(cfg, fs) && cwt_->decimation() % 2 == 0 && full_len % 2 == 0 &&
+  if (decimates(cfg, fs) && full_layout.decimation % 2 == 0 && full_len % 2 == 0 &&
       (n_pre_ + n_win_) / 2 >= (n_pre_ + n_ml_margin_ + 1) / 2 + full_len / 2) {
     dsp::MorletCwtConfig hc = cc;
     hc.sample_rate_hz = fs / 2.0;
     hc.max_samples = (max_samples() + 1) / 2;
     hc.half_rate_121_input = true;
-    auto half = std::make_unique<dsp::MorletCwt<float>>(hc);
-    if (2 * half->decimation() == cwt_->decimation()) {
-      cwt_ = std::move(half);
+    const auto half_layout = dsp::MorletCwt<float>::layout(hc);
+    if (2 * half_layout.decimation == full_layout.decimation) {
+      cwt_cfg_ = hc;
+      fft_len_ = half_layout.fft_length;
       in_dec_ = 2;
     }
   }
   fs_a_ = fs / static_cast<double>(in_dec_);
-  // CWT input length: the window, or its half-rate copy (ceil(n / 2) samples).
-  const std::size_t max_in = (max_samples() + in_dec_ - 1) / in_dec_;
-  // The ridge follow-up asks for a row's noise gain at every column; noise_gain() integrates the
-  // filter each time (measured: 46k instructions per impact), so the rows' gains are kept.
-  row_gain_.resize(rows);
-  for (std::size_t r = 0; r < rows; ++r) row_gain_[r] = cwt_->noise_gain(rows_hz_[r]);
   // Rows within one filter sd (1/eta0 in ln f) of each other, for the ridge follow-up's stray and
   // recovery tests (the same expression it evaluated per column before; with the stop test compared
   // as power ratios, no logarithm per column: BM_AnalyzerRidgeLs 8.8 -> 8.4 us, results bit-identical).
@@ -126,17 +127,6 @@ ImpactAnalyzer::ImpactAnalyzer(const ImpactAnalyzerConfig& cfg, double fs) {
   for (std::size_t r = 0; r < rows; ++r)
     for (std::size_t q = 0; q < rows; ++q)
       near_[r * rows + q] = std::abs(std::log(rows_hz_[r] / rows_hz_[q])) <= 1.0 / eta0_ ? 1 : 0;
-  const std::size_t max_cols = (max_in + cwt_->decimation() - 1) / cwt_->decimation() + 1;
-  power_.assign(rows * max_cols, 0.0);
-  w_.assign(max_cols, {});
-  wf_.assign(max_cols, {});
-  grid_.assign(rows * max_cols, {});
-  if (in_dec_ == 2) xf_.assign(max_in, 0.0f);
-  xd_.assign(max_in, 0.0);
-  scratch_.assign(2 * max_cols, 0.0);
-  row_median_.assign(rows, 0.0);
-  envelope_ws_.reserve(max_cols, max_cols);
-  ml_result_.modes.reserve(1);
   // ML fitters for segments of k/8 of the full decay window, k = 1..8 (at least 64 samples). The
   // lengths stay exact: rounding them to FFT-friendly sizes (1766 -> 1728 or 1536 at 51.2 kHz) was
   // measured to move replay-data estimates of misspecified cases by several percent (sim-second-mode
@@ -147,6 +137,7 @@ ImpactAnalyzer::ImpactAnalyzer(const ImpactAnalyzerConfig& cfg, double fs) {
   // full-rate DFT bins; the shorter ones (cut windows) round down by half a sample where the full-rate
   // length is odd. A window whose onset has the other parity (only at a stream start) holds one copy
   // sample less and takes the next shorter fitter.
+  // Only the lengths here (cheap); the buffers, the fitters and the FFTW warm-up wait for prepare().
   const std::size_t full = full_len;
   const std::size_t min_len = 64 / in_dec_;
   for (std::size_t k = 1; k <= 8; ++k) {
@@ -172,13 +163,45 @@ ImpactAnalyzer::ImpactAnalyzer(const ImpactAnalyzerConfig& cfg, double fs) {
     }
     if (len < min_len || (!fitter_len_.empty() && len == fitter_len_.back())) continue;
     fitter_len_.push_back(len);
-    const std::size_t max_bins = bins_for(len);
-    fitters_.push_back(std::make_unique<dsp::SpectralModeFitter>(len, fs_a_, max_bins));
+    fitter_bins_.push_back(bins_for(len));
   }
+}
+
+void ImpactAnalyzer::prepare() {
+  if (prepared_) return;
+  const std::size_t rows = rows_hz_.size();
+  cwt_ = std::make_unique<dsp::MorletCwt<float>>(cwt_cfg_);
+  // The ridge follow-up asks for a row's noise gain at every column; noise_gain() integrates the
+  // filter each time (measured: 46k instructions per impact), so the rows' gains are kept.
+  row_gain_.resize(rows);
+  for (std::size_t r = 0; r < rows; ++r) row_gain_[r] = cwt_->noise_gain(rows_hz_[r]);
+  // CWT input length: the window, or its half-rate copy (ceil(n / 2) samples).
+  const std::size_t max_in = (max_samples() + in_dec_ - 1) / in_dec_;
+  const std::size_t max_cols = (max_in + cwt_->decimation() - 1) / cwt_->decimation() + 1;
+  power_.assign(rows * max_cols, 0.0);
+  w_.assign(max_cols, {});
+  wf_.assign(max_cols, {});
+  grid_.assign(rows * max_cols, {});
+  if (in_dec_ == 2) xf_.assign(max_in, 0.0f);
+  xd_.assign(max_in, 0.0);
+  scratch_.assign(2 * max_cols, 0.0);
+  row_median_.assign(rows, 0.0);
+  envelope_ws_.reserve(max_cols, max_cols);
+  ml_result_.modes.reserve(1);
+  ml_result2_.modes.reserve(2);
+  ml_try_.modes.reserve(2);
+  {
+    std::size_t most = 0;
+    for (std::size_t b : fitter_bins_) most = std::max(most, b);
+    line_bins_.assign(2 * most + 4, {});
+  }
+  for (std::size_t k = 0; k < fitter_len_.size(); ++k)
+    // Room for the line component's fit too: its band is at most twice the fit band plus 3 bins.
+    fitters_.push_back(std::make_unique<dsp::SpectralModeFitter>(fitter_len_[k], fs_a_, fitter_bins_[k],
+                                                                 2 * fitter_bins_[k] + 6));
   // Warm-up: FFTW allocates work space on a plan's first execution, so every plan runs once here
-  // (the CWT's forward and inverse transforms, each fitter's bin evaluation at its largest band).
-  // A StreamProcessor keeps several analyzers (one per maximum window) and the first impact that
-  // needs one may come long after start-up: analyze() must allocate nothing from the first call.
+  // (the CWT's forward and inverse transforms, each fitter's bin evaluation at its largest band):
+  // after prepare(), analyze() allocates nothing.
   {
     std::fill(xf_.begin(), xf_.end(), 0.0f);
     std::vector<float> zeros(max_in, 0.0f);
@@ -201,6 +224,7 @@ ImpactAnalyzer::ImpactAnalyzer(const ImpactAnalyzerConfig& cfg, double fs) {
       fitters_[k]->dft_bins(seg, 1, bins);
     }
   }
+  prepared_ = true;
 }
 
 ImpactAnalyzer::~ImpactAnalyzer() = default;
@@ -214,6 +238,7 @@ double ImpactAnalyzer::gain_at(double f_hz) const {
 }
 
 ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
+  prepare();
   ImpactEvent ev;
   ev.sample_index = win.onset_index;
   ev.t_s = static_cast<double>(win.onset_index) / fs_;
@@ -429,6 +454,10 @@ ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
   dsp::DampingEstimate rls = dsp::estimate_ridge_ls(row, ew, f_d, envelope_ws_);
   two.f_sd_hz = rls.f_sd_hz = f_sd;
   const double snr_db = rls.snr_db;
+  // The SNR the status rule compares with min_snr_db: snr_db, or, when the ML fit modelled a steady
+  // line, the same ridge power against the fit's residual noise where that is lower (the noise floor
+  // from the gaps between impacts holds the line's power, which the fit has explained).
+  double snr_status_db = snr_db;
 
   // 4. Maximum likelihood on the decay segment.
   dsp::DampingEstimate ml;
@@ -476,8 +505,80 @@ ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
         for (std::size_t i = 0; i < fitter_len_[pick]; ++i) xd_[a0 + i] = static_cast<double>(x[a0 + i]);
       const std::span<const double> seg = std::span<const double>(xd_).subspan(a0, fitter_len_[pick]);
       fitters_[pick]->fit(seg, std::span<const dsp::ModeGuess>(&guess, 1), mo, fit);
-      if (!fit.modes.empty()) {
-        ml = fit.modes.front();
+      const dsp::MlFitResult* used = &fit;
+      auto precise = [&](const dsp::MlFitResult& r) {
+        if (r.modes.empty() || r.modes.front().status != dsp::EstimateStatus::ok) return false;
+        const dsp::DampingEstimate& e = r.modes.front();
+        return std::isfinite(e.zeta_ci95_lo) && e.zeta_ci95_lo > 0 && e.zeta_ci95_hi <= max_ci_ratio_ * e.zeta_ci95_lo;
+      };
+      if (!precise(fit) && !fit.modes.empty() && std::isfinite(fit.modes.front().f_hz)) {
+        // A steady line near the mode (a mesh harmonic sweeping through the band, a hum harmonic)
+        // that the single-mode model does not explain widens the interval. Second fit with a nearly
+        // undamped extra component started at the line: the strongest local maximum of the segment's
+        // DFT within half the fit band's width outside it and at least 1.5 bins from the mode (the
+        // fit band widened to hold it), or, without one (a line merged with the mode's peak), 1.25
+        // bins below and above the mode, keeping the fit with the smaller residual. Its result is
+        // used only when its interval passes the precision rule and the mode stayed within a bin.
+        const std::size_t len = fitter_len_[pick];
+        const double fm = fit.modes.front().f_hz;
+        const double span_hz = mo.f_hi_hz - mo.f_lo_hz;
+        const auto k_lo = static_cast<std::size_t>(std::max(1.0, std::ceil((mo.f_lo_hz - 0.5 * span_hz) / bin_hz)));
+        const auto k_hi = std::min(static_cast<std::size_t>(std::floor((mo.f_hi_hz + 0.5 * span_hz) / bin_hz)), (len - 1) / 2);
+        double line_hz[2] = {NAN, NAN};
+        if (k_hi >= k_lo + 2 && k_hi - k_lo + 1 <= line_bins_.size()) {
+          const std::size_t count = k_hi - k_lo + 1;
+          std::span<std::complex<double>> b(line_bins_.data(), count);
+          fitters_[pick]->dft_bins(seg, k_lo, b);
+          double best_mag = 0.0;
+          for (std::size_t i = 1; i + 1 < count; ++i) {
+            const double f = static_cast<double>(k_lo + i) * bin_hz;
+            const double m = std::abs(b[i]);
+            if (std::abs(f - fm) < 1.5 * bin_hz || m < std::abs(b[i - 1]) || m < std::abs(b[i + 1])) continue;
+            if (m > best_mag) {
+              best_mag = m;
+              line_hz[0] = f;
+            }
+          }
+        }
+        if (!std::isfinite(line_hz[0])) {
+          line_hz[0] = fm - 1.25 * bin_hz;
+          line_hz[1] = fm + 1.25 * bin_hz;
+        }
+        double best_noise = std::numeric_limits<double>::infinity();
+        for (const double fl : line_hz) {
+          if (!std::isfinite(fl)) continue;
+          const dsp::ModeGuess pair[2] = {guess, {fl, 1e-4}};
+          dsp::MlFitOptions mo2 = mo;
+          mo2.f_lo_hz = std::max(std::min(mo.f_lo_hz, fl - 1.5 * bin_hz), 1.0);
+          mo2.f_hi_hz = std::min(std::max(mo.f_hi_hz, fl + 1.5 * bin_hz), 0.4999 * fs_a_);
+          // Residual terms as the bins allow: 8 mode parameters plus 2 per term, and the fit needs
+          // more than params + 2 values (2 per bin).
+          const double bins2 = (mo2.f_hi_hz - mo2.f_lo_hz) / bin_hz;
+          mo2.residual_terms = bins2 >= 11.0 ? 2 : (bins2 >= 8.0 ? 1 : 0);
+          fitters_[pick]->fit(seg, std::span<const dsp::ModeGuess>(pair, 2), mo2, ml_try_);
+          // Components closer than sep_bins DFT bins are not resolved by the segment: such a fit is
+          // not used whatever its interval says.
+          const bool resolved = ml_try_.modes.size() == 2 &&
+                                std::abs(ml_try_.modes[1].f_hz - ml_try_.modes[0].f_hz) >= kLineSepBins * bin_hz;
+          if (resolved && precise(ml_try_) && std::abs(ml_try_.modes.front().f_hz - fm) < bin_hz &&
+              ml_try_.noise_sd < best_noise) {
+            best_noise = ml_try_.noise_sd;
+            ml_result2_.modes = ml_try_.modes;  // capacity 2: no allocation
+            ml_result2_.noise_sd = ml_try_.noise_sd;
+            ml_result2_.converged = ml_try_.converged;
+            ml_result2_.bins = ml_try_.bins;
+            used = &ml_result2_;
+          }
+        }
+      }
+      if (used == &ml_result2_ && used->noise_sd > 0) {
+        // White-equivalent variance of x at fs: the copy's in-band noise is H^2 sigma^2 / 2 (step 0).
+        const double h = in_dec_ == 2 ? std::pow(std::cos(std::numbers::pi * used->modes.front().f_hz / fs_), 2) : 1.0;
+        const double resid_var = used->noise_sd * used->noise_sd * (in_dec_ == 2 ? 2.0 / (h * h) : 1.0);
+        if (resid_var < noise_var) snr_status_db = snr_db + 10.0 * std::log10(noise_var / resid_var);
+      }
+      if (!used->modes.empty()) {
+        ml = used->modes.front();
         ml.window_start_s += static_cast<double>(a0) / fs_a_;
         ml.window_end_s += static_cast<double>(a0) / fs_a_;
         // The copy's mode amplitude is H(f) = cos^2(pi f / fs) times the window's: the taps' response
@@ -543,7 +644,7 @@ ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
     // The free response stopped so early that no envelope window is left between the edge skips:
     // the values are the equivalent viscous estimate over the short segment, not a trusted one.
     else if (ridge_ended && ew.status == dsp::EstimateStatus::too_short) computed = ImpactStatus::too_short;
-    else if (!(snr_db >= min_snr_db_) || ew.status == dsp::EstimateStatus::low_snr) computed = ImpactStatus::low_snr;
+    else if (!(snr_status_db >= min_snr_db_) || ew.status == dsp::EstimateStatus::low_snr) computed = ImpactStatus::low_snr;
     else if (computed == ImpactStatus::ok && !interval_precise) computed = ImpactStatus::low_snr;
   }
   return finish(computed);

@@ -104,7 +104,10 @@ struct StreamProcessor::Impl {
   // Analyzers for decay windows of window_s, window_s / sqrt(2), window_s / 2, ... down to the shortest
   // window the analysis accepts (ascending): each window goes to the shortest one that holds it, so a
   // short decay costs what it did with a short fixed window (the CWT's FFT and the ML segments are
-  // sized by the analyzer's maximum) and window_s can be a generous maximum.
+  // sized by the analyzer's maximum) and window_s can be a generous maximum. Made with their sizes
+  // only; each is prepared by its first window (ImpactAnalyzer::prepare(): the buffers and ML fitters
+  // of all of them were 76 ms of start-up and 26 MB at 51.2 kHz for window_s = 1 s, while a steady
+  // stream's decays use one or two).
   std::vector<std::unique_ptr<ImpactAnalyzer>> ladder;
   ImpactAnalyzer& analyzer;  // the longest (window_s)
   ImpactDetector detector;
@@ -201,11 +204,26 @@ struct StreamProcessor::Impl {
       ImpactAnalyzerConfig ac = a;
       ac.window_s = *it;
       auto an = std::make_unique<ImpactAnalyzer>(ac, c.sample_rate_hz);
+      // Where the rate allows the half-rate analysis (ImpactAnalyzer step 0) but this maximum does not
+      // get it (an odd window length: the copy would not keep the full-rate DFT bins), one sample
+      // longer usually does (every rung at 51.2 kHz; at 25.6 kHz the CWT's odd decimation rules it out
+      // anyway and the rungs stay as they are). Measured (impacts 40 ms apart, windows in the 44.2 ms
+      // rung): `ridgewatch analyze` of 60 s processed in 34 ms instead of 42, the daemon 8 % faster.
+      if (ImpactAnalyzer::decimates(ac, c.sample_rate_hz) && an->input_decimation() == 1) {
+        ImpactAnalyzerConfig longer = ac;
+        longer.window_s = static_cast<double>(std::llround(*it * c.sample_rate_hz) + 1) / c.sample_rate_hz;
+        auto an2 = std::make_unique<ImpactAnalyzer>(longer, c.sample_rate_hz);
+        if (an2->input_decimation() == 2) {
+          ac = longer;
+          an = std::move(an2);
+        }
+      }
       // A maximum whose CWT FFT has an odd length (FFTW's odd real transform allocates on every
       // execution) is lengthened by 1 % steps until it is even (windows still end at window_s:
       // max_win).
+      const double base = ac.window_s;
       for (int k = 1; k <= 16 && an->fft_length() % 2 != 0; ++k) {
-        ac.window_s = *it * (1.0 + 0.01 * k);
+        ac.window_s = base * (1.0 + 0.01 * k);
         an = std::make_unique<ImpactAnalyzer>(ac, c.sample_rate_hz);
       }
       out.push_back(std::move(an));

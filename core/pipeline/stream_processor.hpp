@@ -3,8 +3,13 @@
 // pre-trigger -> band CWT, ridge near the expected natural frequency, damping estimate -> status ->
 // trend/alarm state. Pure computation: no I/O, threads or clock; sample indices are the clock.
 //
-// Real-time contract: buffers and FFT plans are made in the constructor. After that, process() and
-// flush() allocate nothing (operator new or malloc), per sample or per impact: the per-sample path
+// Real-time contract: buffers and FFT plans are made in the constructor, except those of the decay
+// windows' analyzers (one per maximum window, window_s down to 16 ms in steps of sqrt(2)): each is
+// prepared (buffers, ML fitters, a first run of its FFT plans) by the first impact whose window it
+// analyses, once, so that a stream pays only for the window lengths its decays use (all of them:
+// ~76 ms of start-up and ~26 MB at 51.2 kHz with window_s = 1 s; a steady stream uses one or two).
+// After that, process() and flush() allocate nothing (operator new or malloc), per sample or per
+// impact: the per-sample path
 // (spike test, trigger band, STA/LTA, onset), the per-impact CWT, ridge, envelope estimators (their
 // scratch is reserved, dsp::EnvelopeWorkspace) and ML fit (fixed-capacity matrices), and the trend
 // monitor. Events are appended to the caller's vector (reserve it). Tested with allocation counters in
