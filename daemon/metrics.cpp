@@ -75,10 +75,10 @@ std::string prometheus_escape(std::string_view value) {
 Telemetry::Telemetry(std::string source_name, std::string version, const trend::TrendConfig& trend, double fs)
     : source_(std::move(source_name)), version_(std::move(version)), trend_(trend), fs_(fs) {}
 
-void Telemetry::on_events(std::span<const pipeline::ImpactEvent> events) {
+void Telemetry::on_events(std::span<const pipeline::ImpactEvent> events, std::string_view last_json) {
   if (events.empty()) return;
-  // The JSON of the newest event is built outside the lock.
-  std::string last = cli::event_json(events.back(), source_);
+  // The JSON of the newest event, outside the lock.
+  std::string last = last_json.empty() ? cli::event_json(events.back(), source_) : std::string(last_json);
   std::lock_guard<std::mutex> lock(mutex_);
   for (const auto& e : events) {
     ++events_;

@@ -18,7 +18,6 @@
 #include <condition_variable>
 #include <cstdint>
 #include <deque>
-#include <map>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -73,8 +72,18 @@ class MqttSink {
   bool connect();
   void drop_connection(const std::string& why);
   void pump();
+  void set_cork(bool on);
+  bool check(int rc);
+  void wait_socket(std::chrono::milliseconds timeout);
+  bool unsent_work();
+  void signal_work();
   void on_connect(int rc);
   void on_publish(int mid);
+  void retire_acknowledged();
+  void finish_round();
+  bool waiting_for(int mid) const;
+  void track(int mid, std::uint64_t seq, int qos);
+  int read_socket();
   void log(int level, std::string text);
   static void cb_connect(struct mosquitto*, void* self, int rc);
   static void cb_publish(struct mosquitto*, void* self, int mid);
@@ -88,9 +97,15 @@ class MqttSink {
   // Sender thread only.
   struct mosquitto* mosq_ = nullptr;
   bool connected_ = false;
-  std::map<int, std::uint64_t> inflight_;  // message id -> event seq (0: status/alarm)
-  std::map<std::uint64_t, bool> acked_out_of_order_;
-  std::uint64_t sent_through_ = 0, ack_pointer_ = 0;
+  struct Inflight {
+    int mid;            // libmosquitto message id
+    std::uint64_t seq;  // event seq (0: status or alarm message)
+    bool done;          // acknowledged (QoS 1) or handed over (QoS 0)
+  };
+  std::deque<Inflight> inflight_;  // publish order
+  std::uint64_t sent_through_ = 0;  // highest seq published on this connection
+  std::uint64_t ack_pointer_ = 0;   // every event <= this is acknowledged
+  std::uint64_t spool_acked_told_ = 0, acked_in_round_ = 0;
   std::vector<Spool::Message> batch_;
   std::chrono::duration<double> backoff_{0.5};
   std::chrono::steady_clock::time_point next_attempt_{}, last_status_{}, last_persist_{};
@@ -101,6 +116,8 @@ class MqttSink {
   mutable std::mutex mutex_;  // guards the fields below
   std::condition_variable cv_;
   bool stop_ = false;
+  bool idle_ = false;  // the sender waits for work (only then does the producer notify)
+  bool work_ = false;  // events or an alarm arrived since the sender last went idle
   std::chrono::steady_clock::time_point drain_deadline_{};
   std::deque<std::string> alarms_;  // pending alarm messages (bounded)
   std::vector<std::pair<int, std::string>> log_;
