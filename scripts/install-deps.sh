@@ -9,6 +9,7 @@ packages=(
   dpkg-dev man-db  # the .deb (CPack, dpkg-shlibdeps) and its test (man -l)
   clang-14 libclang-rt-14-dev
   libmosquitto-dev mosquitto libcpp-httplib-dev prometheus
+  chromium  # the live page's test loads it in headless Chromium (the test skips when it is absent)
 )
 missing=()
 for p in "${packages[@]}"; do
