@@ -140,6 +140,28 @@ TEST(Metrics, PromtoolAcceptsThemAndCountersEqualTheEventLog) {
   const json s = json::parse(state);
   EXPECT_EQ(s["events"], events.size());
   EXPECT_EQ(s["alarm"]["level"], "danger");
+  // Its recent events are the newest logged ones, value for value (both writers print the shortest
+  // text that reads back as the same double, and null where there is no value).
+  const json& recent = s["recent"];
+  ASSERT_EQ(recent.size(), std::min<std::size_t>(events.size(), 300));
+  const std::size_t off = events.size() - recent.size();
+  for (std::size_t i = 0; i < recent.size(); ++i) {
+    const json& e = events[off + i];
+    EXPECT_EQ(recent[i]["n"], off + i + 1) << i;
+    EXPECT_EQ(recent[i]["t_s"], e["t_s"]) << i;
+    EXPECT_EQ(recent[i]["zeta"], e["zeta"]) << i;
+    EXPECT_EQ(recent[i]["lo"], e["zeta_ci95"][0]) << i;
+    EXPECT_EQ(recent[i]["hi"], e["zeta_ci95"][1]) << i;
+    EXPECT_EQ(recent[i]["status"], e["status"]) << i;
+    EXPECT_EQ(recent[i]["alarm"], e["alarm"]) << i;
+  }
+  ASSERT_GE(s["envelopes"].size(), 1u);  // the first event's window at least
+  for (const json& env : s["envelopes"]) {
+    EXPECT_TRUE(env["zeta"].is_number() || env["zeta"].is_null());
+    ASSERT_FALSE(env["envelope"].empty());
+    EXPECT_LE(env["envelope"].size(), 160u);
+    for (const json& v : env["envelope"]) EXPECT_GE(v.get<double>(), 0.0);  // peak |x|
+  }
   EXPECT_EQ(page_status, 200);
   EXPECT_NE(page.find("<title>ridgewatch</title>"), std::string::npos);
   EXPECT_EQ(page.find("src=\"http"), std::string::npos);  // nothing loaded from elsewhere
