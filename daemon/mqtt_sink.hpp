@@ -6,8 +6,11 @@
 //   <prefix>/alarm   retained: one message per alarm transition
 //
 // Nothing is lost: the processing thread only appends events to the on-disk Spool (no network); a
-// sender thread owns the libmosquitto client, publishes from the spool in seq order with a window of
-// messages in flight, and acknowledges them in the spool on PUBACK. A lost connection throws the
+// sender thread owns the libmosquitto client (its own loop on mosquitto_loop_read/write/misc) and
+// works in rounds, at most one per millisecond: it reads the PUBACKs that arrived (acknowledging their
+// events in the spool once per round), then publishes what the spool holds beyond what was sent, in
+// seq order, up to a window of messages in flight, in one TCP_CORK burst; with nothing to do it
+// sleeps until the processing thread spools again. A lost connection throws the
 // client away; the next one (after a backoff of 0.5 s doubling to 4 s) resends from the oldest
 // unacknowledged event, so consumers see every seq at least once, in order, and de-duplicate by seq.
 // Alarm and status messages are not spooled: they are state, and the newest one is retained.
