@@ -16,12 +16,7 @@
 #include <vector>
 
 #include "cli/commands.hpp"
-// GCC 12 reports a false stringop-overflow inside std::vector<unsigned char> growth when the WAV
-// writer is inlined at -O2 (a known GCC 12 false positive, GCC bug 106199 family).
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wstringop-overflow"
 #include "tests/support/indep_signals.hpp"
-#pragma GCC diagnostic pop
 
 namespace survey_cases {
 

@@ -1,6 +1,7 @@
 #include "daemon/metrics.hpp"
 
 #include <algorithm>
+#include <charconv>
 #include <chrono>
 #include <cmath>
 #include <nlohmann/json.hpp>
@@ -51,6 +52,34 @@ void sample(std::string& out, const std::string& name_and_labels, std::uint64_t 
   out += '\n';
 }
 
+// A JSON number: the shortest text that reads back as the same value; NaN and infinities (which JSON
+// cannot spell) as null, as nlohmann::json writes them.
+void json_number(std::string& out, double v) {
+  if (!std::isfinite(v)) {
+    out += "null";
+    return;
+  }
+  char buf[32];
+  const auto r = std::to_chars(buf, buf + sizeof buf, v);
+  out.append(buf, r.ptr);
+}
+
+void json_number(std::string& out, float v) {  // shortest for the float itself, not its double widening
+  if (!std::isfinite(v)) {
+    out += "null";
+    return;
+  }
+  char buf[32];
+  const auto r = std::to_chars(buf, buf + sizeof buf, v);
+  out.append(buf, r.ptr);
+}
+
+void json_number(std::string& out, std::uint64_t v) {
+  char buf[24];
+  const auto r = std::to_chars(buf, buf + sizeof buf, v);
+  out.append(buf, r.ptr);
+}
+
 double zeta_of(double ln_zeta) { return std::isfinite(ln_zeta) ? std::exp(ln_zeta) : NAN; }
 
 }  // namespace
@@ -75,10 +104,10 @@ std::string prometheus_escape(std::string_view value) {
 Telemetry::Telemetry(std::string source_name, std::string version, const trend::TrendConfig& trend, double fs)
     : source_(std::move(source_name)), version_(std::move(version)), trend_(trend), fs_(fs) {}
 
-void Telemetry::on_events(std::span<const pipeline::ImpactEvent> events) {
+void Telemetry::on_events(std::span<const pipeline::ImpactEvent> events, std::string_view last_json) {
   if (events.empty()) return;
-  // The JSON of the newest event is built outside the lock.
-  std::string last = cli::event_json(events.back(), source_);
+  // The JSON of the newest event, outside the lock.
+  std::string last = last_json.empty() ? cli::event_json(events.back(), source_) : std::string(last_json);
   std::lock_guard<std::mutex> lock(mutex_);
   for (const auto& e : events) {
     ++events_;
@@ -214,7 +243,7 @@ std::string Telemetry::prometheus_text() const {
 
 std::string Telemetry::state_json() const {
   const MqttCounters m = mqtt_ ? mqtt_() : MqttCounters{};
-  std::lock_guard<std::mutex> lock(mutex_);
+  std::unique_lock<std::mutex> lock(mutex_);
   using nlohmann::json;
   const double s_e = alarm_.baseline_ln_sd * std::sqrt(trend_.ewma_lambda / (2.0 - trend_.ewma_lambda));
   const double b = alarm_.baseline_ln_zeta;
@@ -253,17 +282,51 @@ std::string Telemetry::state_json() const {
                  {"write_failures", counters_.write_failures},
                  {"mqtt", {{"enabled", m.enabled}, {"connected", m.connected}, {"spool_events", m.spool_events},
                            {"dropped", m.dropped}, {"send_failures", m.send_failures}, {"published", m.published}}}};
-  json ev = json::array();
-  for (const auto& c : recent_)
-    ev.push_back({{"n", c.n}, {"t_s", c.t_s}, {"zeta", c.zeta}, {"lo", c.lo}, {"hi", c.hi}, {"f_hz", c.f_hz},
-                  {"snr_db", c.snr_db}, {"status", pipeline::to_string(c.status)}, {"alarm", pipeline::to_string(c.alarm)}});
-  j["recent"] = ev;
-  json envs = json::array();
-  for (const auto& e : envelopes_)
-    envs.push_back({{"n", e.n}, {"t_s", e.t_s}, {"zeta", e.zeta}, {"lo", e.lo}, {"hi", e.hi}, {"f_hz", e.f_hz},
-                    {"dt_s", e.dt_s}, {"start_s", e.onset_s}, {"envelope", e.env}});
-  j["envelopes"] = envs;
-  return j.dump(-1, ' ', false, json::error_handler_t::replace);
+  // The 300 recent events and the envelopes (most of the ~80 kB) are copied under the lock and
+  // written by hand after it: the processing thread never waits for their serialisation, and a
+  // request costs ~0.1 ms instead of ~1 ms with a JSON object per event.
+  const std::vector<Compact> recent(recent_.begin(), recent_.end());
+  const std::vector<Envelope> envelopes(envelopes_.begin(), envelopes_.end());
+  lock.unlock();
+  std::string out = j.dump(-1, ' ', false, json::error_handler_t::replace);
+  out.pop_back();  // the closing brace; the two arrays follow
+  out.reserve(out.size() + 160 * recent.size() + 1200 * envelopes.size() + 40);
+  out += ",\"recent\":[";
+  for (const auto& c : recent) {
+    if (out.back() == '}') out += ',';
+    out += "{\"n\":";
+    json_number(out, c.n);
+    for (const auto& [key, v] : {std::pair{",\"t_s\":", c.t_s}, {",\"zeta\":", c.zeta}, {",\"lo\":", c.lo},
+                                 {",\"hi\":", c.hi}, {",\"f_hz\":", c.f_hz}, {",\"snr_db\":", c.snr_db}}) {
+      out += key;
+      json_number(out, v);
+    }
+    out += ",\"status\":\"";
+    out += pipeline::to_string(c.status);
+    out += "\",\"alarm\":\"";
+    out += pipeline::to_string(c.alarm);
+    out += "\"}";
+  }
+  out += "],\"envelopes\":[";
+  for (const auto& e : envelopes) {
+    if (out.back() == ']' || out.back() == '}') out += ',';
+    out += "{\"n\":";
+    json_number(out, e.n);
+    for (const auto& [key, v] : {std::pair{",\"t_s\":", e.t_s}, {",\"zeta\":", e.zeta}, {",\"lo\":", e.lo},
+                                 {",\"hi\":", e.hi}, {",\"f_hz\":", e.f_hz}, {",\"dt_s\":", e.dt_s},
+                                 {",\"start_s\":", e.onset_s}}) {
+      out += key;
+      json_number(out, v);
+    }
+    out += ",\"envelope\":[";
+    for (std::size_t i = 0; i < e.env.size(); ++i) {
+      if (i > 0) out += ',';
+      json_number(out, e.env[i]);
+    }
+    out += "]}";
+  }
+  out += "]}";
+  return out;
 }
 
 std::string Telemetry::status_json() const {

@@ -39,7 +39,8 @@ class Telemetry {
   Telemetry(std::string source_name, std::string version, const trend::TrendConfig& trend, double sample_rate_hz);
 
   // Processing thread.
-  void on_events(std::span<const pipeline::ImpactEvent> events);
+  /// `last_json`: the newest event's event-log JSON when the caller has it (else it is built here).
+  void on_events(std::span<const pipeline::ImpactEvent> events, std::string_view last_json = {});
   void set_counters(const DaemonCounters& c);
   void observe_latency(double seconds);
   /// True when the page wants the samples of this event's window (at most 5 per second of wall time).

@@ -6,8 +6,11 @@
 //   <prefix>/alarm   retained: one message per alarm transition
 //
 // Nothing is lost: the processing thread only appends events to the on-disk Spool (no network); a
-// sender thread owns the libmosquitto client, publishes from the spool in seq order with a window of
-// messages in flight, and acknowledges them in the spool on PUBACK. A lost connection throws the
+// sender thread owns the libmosquitto client (its own loop on mosquitto_loop_read/write/misc) and
+// works in rounds, at most one per millisecond: it reads the PUBACKs that arrived (acknowledging their
+// events in the spool once per round), then publishes what the spool holds beyond what was sent, in
+// seq order, up to a window of messages in flight, in one TCP_CORK burst; with nothing to do it
+// sleeps until the processing thread spools again. A lost connection throws the
 // client away; the next one (after a backoff of 0.5 s doubling to 4 s) resends from the oldest
 // unacknowledged event, so consumers see every seq at least once, in order, and de-duplicate by seq.
 // Alarm and status messages are not spooled: they are state, and the newest one is retained.
@@ -18,7 +21,6 @@
 #include <condition_variable>
 #include <cstdint>
 #include <deque>
-#include <map>
 #include <memory>
 #include <mutex>
 #include <string>
@@ -73,8 +75,18 @@ class MqttSink {
   bool connect();
   void drop_connection(const std::string& why);
   void pump();
+  void set_cork(bool on);
+  bool check(int rc);
+  void wait_socket(std::chrono::milliseconds timeout);
+  bool unsent_work();
+  void signal_work();
   void on_connect(int rc);
   void on_publish(int mid);
+  void retire_acknowledged();
+  void finish_round();
+  bool waiting_for(int mid) const;
+  void track(int mid, std::uint64_t seq, int qos);
+  int read_socket();
   void log(int level, std::string text);
   static void cb_connect(struct mosquitto*, void* self, int rc);
   static void cb_publish(struct mosquitto*, void* self, int mid);
@@ -88,9 +100,15 @@ class MqttSink {
   // Sender thread only.
   struct mosquitto* mosq_ = nullptr;
   bool connected_ = false;
-  std::map<int, std::uint64_t> inflight_;  // message id -> event seq (0: status/alarm)
-  std::map<std::uint64_t, bool> acked_out_of_order_;
-  std::uint64_t sent_through_ = 0, ack_pointer_ = 0;
+  struct Inflight {
+    int mid;            // libmosquitto message id
+    std::uint64_t seq;  // event seq (0: status or alarm message)
+    bool done;          // acknowledged (QoS 1) or handed over (QoS 0)
+  };
+  std::deque<Inflight> inflight_;  // publish order
+  std::uint64_t sent_through_ = 0;  // highest seq published on this connection
+  std::uint64_t ack_pointer_ = 0;   // every event <= this is acknowledged
+  std::uint64_t spool_acked_told_ = 0, acked_in_round_ = 0;
   std::vector<Spool::Message> batch_;
   std::chrono::duration<double> backoff_{0.5};
   std::chrono::steady_clock::time_point next_attempt_{}, last_status_{}, last_persist_{};
@@ -101,6 +119,8 @@ class MqttSink {
   mutable std::mutex mutex_;  // guards the fields below
   std::condition_variable cv_;
   bool stop_ = false;
+  bool idle_ = false;  // the sender waits for work (only then does the producer notify)
+  bool work_ = false;  // events or an alarm arrived since the sender last went idle
   std::chrono::steady_clock::time_point drain_deadline_{};
   std::deque<std::string> alarms_;  // pending alarm messages (bounded)
   std::vector<std::pair<int, std::string>> log_;

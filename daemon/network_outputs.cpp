@@ -38,7 +38,11 @@ void NetworkOutputs::on_events(std::span<const pipeline::ImpactEvent> events, st
     for (const auto& e : events)
       if (e.alarm.transition()) mqtt_->publish_alarm(e);
   }
-  telemetry_.on_events(events);
+  // The newest event's line as written to the event log (serialised once per event).
+  std::string_view last = json_lines;
+  while (!last.empty() && last.back() == '\n') last.remove_suffix(1);
+  if (const auto nl = last.rfind('\n'); nl != std::string_view::npos) last.remove_prefix(nl + 1);
+  telemetry_.on_events(events, last);
 }
 
 void NetworkOutputs::poll(const DaemonCounters& counters, bool force) {

@@ -6,6 +6,10 @@
 #
 #   scripts/bench-fleet.sh [BUILD_DIR] [SECONDS] [RUNS]
 #
+# Every ridgewatchd run has all its threads (acquisition, processing, MQTT sender, HTTP) pinned to one
+# CPU with taskset, so the CPU factor is what one core sustains; the broker and the scraper are not
+# pinned (their CPU is not the daemon's; the broker's is printed).
+#
 # Prints per run: CPU time of the daemon (user + system, all its threads), wall time to the end of
 # processing (total wall minus the final MQTT drain the daemon logs), the drain, the broker's CPU,
 # and the real-time factors = recording seconds / those times. Every event is checked to have been
@@ -18,7 +22,7 @@ runs=${3:-3}
 for bin in "$build/cli/ridgewatch" "$build/daemon/ridgewatchd"; do
   [[ -x $bin ]] || { echo "bench-fleet: $bin not found; build it first" >&2; exit 2; }
 done
-for tool in mosquitto curl; do
+for tool in mosquitto curl taskset; do
   command -v "$tool" >/dev/null || [[ -x /usr/sbin/$tool ]] || { echo "bench-fleet: $tool is missing" >&2; exit 2; }
 done
 tmp=$(mktemp -d "${TMPDIR:-/tmp}/ridgewatch-bench-fleet.XXXXXX")
@@ -55,15 +59,17 @@ output:
 http:
   listen: "127.0.0.1:$http_port"
 YAML
+# The first CPU this shell may run on (its affinity list, e.g. "0,1" or "0-1").
+cpu=$(taskset -pc $$ | sed -E 's/.*: *([0-9]+).*/\1/')
 broker_cpu() { awk '{ print ($14 + $15) / 100 }' "/proc/$broker_pid/stat"; }  # utime + stime, s (100 Hz ticks)
 TIMEFORMAT='%3U %3S %3R'
 plain="$tmp/plain.txt"
 net="$tmp/net.txt"
 : >"$plain"
 : >"$net"
-"$build/daemon/ridgewatchd" --replay "$rec.wav" --speed max --events /dev/null 2>/dev/null  # warm-up
+taskset -c "$cpu" "$build/daemon/ridgewatchd" --replay "$rec.wav" --speed max --events /dev/null 2>/dev/null  # warm-up
 for ((i = 1; i <= runs; i++)); do
-  { time "$build/daemon/ridgewatchd" --replay "$rec.wav" --speed max --events "$tmp/plain.jsonl" 2>/dev/null; } 2>"$tmp/t"
+  { time taskset -c "$cpu" "$build/daemon/ridgewatchd" --replay "$rec.wav" --speed max --events "$tmp/plain.jsonl" 2>/dev/null; } 2>"$tmp/t"
   read -r u s w <"$tmp/t"
   awk -v S="$seconds" -v u="$u" -v s="$s" -v w="$w" 'BEGIN { printf "plain:    CPU %.3f s, wall %.3f s -> %.0fx CPU, %.0fx wall\n", u + s, w, S / (u + s), S / w }' | tee -a "$plain"
   rm -f "$tmp/plain.jsonl"
@@ -73,7 +79,7 @@ for ((i = 1; i <= runs; i++)); do
                 curl -s "http://127.0.0.1:$http_port/api/state" >/dev/null 2>&1 || true; sleep 0.1; done ) &
   scraper_pid=$!
   b0=$(broker_cpu)
-  { time "$build/daemon/ridgewatchd" --config "$tmp/net.yaml" --replay "$rec.wav" --speed max \
+  { time taskset -c "$cpu" "$build/daemon/ridgewatchd" --config "$tmp/net.yaml" --replay "$rec.wav" --speed max \
       --events "$tmp/net.jsonl" 2>"$tmp/net.log"; } 2>"$tmp/t"
   kill "$scraper_pid" 2>/dev/null; wait "$scraper_pid" 2>/dev/null || true
   scraper_pid=""

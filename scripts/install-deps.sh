@@ -10,6 +10,7 @@ packages=(
   clang-14 libclang-rt-14-dev
   libmosquitto-dev mosquitto libcpp-httplib-dev prometheus
   libmuparser-dev  # expressions of user-defined effects (rig file model.custom_effects)
+  chromium  # the live page's test loads it in headless Chromium (the test skips when it is absent)
 )
 missing=()
 for p in "${packages[@]}"; do

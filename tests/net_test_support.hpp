@@ -16,6 +16,7 @@
 #include <functional>
 #include <memory>
 #include <mutex>
+#include <nlohmann/json.hpp>
 #include <string>
 #include <thread>
 #include <vector>
@@ -23,6 +24,24 @@
 #include "process_runner.hpp"
 
 namespace ridgewatch::test {
+
+/// A fresh, empty scratch directory <temp>/ridgewatch-<name>-<pid>: one per test and per process
+/// (ctest runs tests in parallel, and the sanitizer pass runs the same binaries again).
+inline std::filesystem::path temp_dir(const std::string& name) {
+  const auto d = std::filesystem::temp_directory_path() / ("ridgewatch-" + name + "-" + std::to_string(::getpid()));
+  std::filesystem::remove_all(d);
+  std::filesystem::create_directories(d);
+  return d;
+}
+
+/// The objects of a JSON Lines file (an event log), in order.
+inline std::vector<nlohmann::json> read_jsonl(const std::filesystem::path& p) {
+  std::vector<nlohmann::json> out;
+  std::ifstream f(p);
+  std::string line;
+  while (std::getline(f, line)) out.push_back(nlohmann::json::parse(line));
+  return out;
+}
 
 /// A TCP port on 127.0.0.1 that was free a moment ago (the kernel picks it).
 inline int free_loopback_port() {

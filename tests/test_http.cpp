@@ -20,15 +20,12 @@
 #include "daemon/metrics.hpp"
 #include "net_test_support.hpp"
 #include "process_runner.hpp"
-// GCC 12 -O2 reports a false -Wstringop-overflow inside the generator's WAV writer in this
-// translation unit (see test_mqtt.cpp).
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wstringop-overflow"
 #include "support/indep_signals.hpp"
-#pragma GCC diagnostic pop
 
 using ridgewatch::test::ChildProcess;
 using ridgewatch::test::http_get;
+using ridgewatch::test::read_jsonl;
+using ridgewatch::test::temp_dir;
 using ridgewatch::test::wait_for;
 namespace fs = std::filesystem;
 using json = nlohmann::json;
@@ -37,21 +34,6 @@ using namespace std::chrono_literals;
 namespace {
 
 const std::string kReplay = std::string(RIDGEWATCH_SOURCE_DIR) + "/replay-data/sim-noise.wav";
-
-fs::path temp_dir(const std::string& name) {
-  const auto d = fs::temp_directory_path() / ("ridgewatch-http-" + name + "-" + std::to_string(::getpid()));
-  fs::remove_all(d);
-  fs::create_directories(d);
-  return d;
-}
-
-std::vector<json> read_jsonl(const fs::path& p) {
-  std::vector<json> out;
-  std::ifstream f(p);
-  std::string line;
-  while (std::getline(f, line)) out.push_back(json::parse(line));
-  return out;
-}
 
 // An independent record (no code shared with core/model) whose damping steps up half-way, so that
 // the trend goes learning -> normal -> alert/danger: 4 s + 4 s at 25 impacts/s (the daemon learns
@@ -100,7 +82,7 @@ int promtool_check(const fs::path& file, std::string* output) {
 // Acceptance: /metrics passes promtool, and its counters equal the events written to the log.
 TEST(Metrics, PromtoolAcceptsThemAndCountersEqualTheEventLog) {
   if (std::system("command -v promtool >/dev/null 2>&1") != 0) GTEST_SKIP() << "promtool (package prometheus) not installed";
-  const auto dir = temp_dir("metrics");
+  const auto dir = temp_dir("http-metrics");
   const auto [file, samples] = stepped_record(dir);
   ridgewatch::daemon::DaemonOptions options;
   options.config = ridgewatch::cli::default_config();
@@ -158,6 +140,28 @@ TEST(Metrics, PromtoolAcceptsThemAndCountersEqualTheEventLog) {
   const json s = json::parse(state);
   EXPECT_EQ(s["events"], events.size());
   EXPECT_EQ(s["alarm"]["level"], "danger");
+  // Its recent events are the newest logged ones, value for value (both writers print the shortest
+  // text that reads back as the same double, and null where there is no value).
+  const json& recent = s["recent"];
+  ASSERT_EQ(recent.size(), std::min<std::size_t>(events.size(), 300));
+  const std::size_t off = events.size() - recent.size();
+  for (std::size_t i = 0; i < recent.size(); ++i) {
+    const json& e = events[off + i];
+    EXPECT_EQ(recent[i]["n"], off + i + 1) << i;
+    EXPECT_EQ(recent[i]["t_s"], e["t_s"]) << i;
+    EXPECT_EQ(recent[i]["zeta"], e["zeta"]) << i;
+    EXPECT_EQ(recent[i]["lo"], e["zeta_ci95"][0]) << i;
+    EXPECT_EQ(recent[i]["hi"], e["zeta_ci95"][1]) << i;
+    EXPECT_EQ(recent[i]["status"], e["status"]) << i;
+    EXPECT_EQ(recent[i]["alarm"], e["alarm"]) << i;
+  }
+  ASSERT_GE(s["envelopes"].size(), 1u);  // the first event's window at least
+  for (const json& env : s["envelopes"]) {
+    EXPECT_TRUE(env["zeta"].is_number() || env["zeta"].is_null());
+    ASSERT_FALSE(env["envelope"].empty());
+    EXPECT_LE(env["envelope"].size(), 160u);
+    for (const json& v : env["envelope"]) EXPECT_GE(v.get<double>(), 0.0);  // peak |x|
+  }
   EXPECT_EQ(page_status, 200);
   EXPECT_NE(page.find("<title>ridgewatch</title>"), std::string::npos);
   EXPECT_EQ(page.find("src=\"http"), std::string::npos);  // nothing loaded from elsewhere
@@ -170,7 +174,7 @@ TEST(Metrics, LabelValuesAreEscaped) {
   ridgewatch::daemon::Telemetry t("rig \"7\" C:\\data\nline2", "1.0", ridgewatch::trend::TrendConfig{}, 51200.0);
   const std::string text = t.prometheus_text();
   EXPECT_NE(text.find("source=\"rig \\\"7\\\" C:\\\\data\\nline2\""), std::string::npos) << text;
-  const auto dir = temp_dir("escape");
+  const auto dir = temp_dir("http-escape");
   std::ofstream(dir / "m.txt") << text;
   std::string lint;
   EXPECT_EQ(promtool_check(dir / "m.txt", &lint), 0) << lint;
@@ -178,7 +182,7 @@ TEST(Metrics, LabelValuesAreEscaped) {
 
 // A bad or taken listen address is a configuration error naming http.listen (exit 2).
 TEST(Metrics, ListenErrorsNameTheKey) {
-  const auto dir = temp_dir("listen");
+  const auto dir = temp_dir("http-listen");
   {
     std::ofstream(dir / "bad.yaml") << "http:\n  listen: \"localhost\"\n";
     ChildProcess d({RIDGEWATCHD_PATH, "--check-config", (dir / "bad.yaml").string()}, {}, (dir / "o").string(),
@@ -202,7 +206,7 @@ TEST(Metrics, ListenErrorsNameTheKey) {
 // state, and updates by itself as new events arrive.
 TEST(LivePage, HeadlessChromiumShowsEventsAndAlarmAndUpdates) {
   if (std::system("command -v chromium >/dev/null 2>&1") != 0) GTEST_SKIP() << "chromium not installed";
-  const auto dir = temp_dir("page");
+  const auto dir = temp_dir("http-page");
   const int port = ridgewatch::test::free_loopback_port();
   std::ofstream(dir / "c.yaml") << "http:\n  listen: \"127.0.0.1:" << port << "\"\noutput:\n  source_name: \"rig-page\"\n";
   // 2x real time, looping: ~50 new events per second while the browser watches.

@@ -10,12 +10,7 @@
 #include "cli_runner.hpp"
 #include "core/dsp/synthetic.hpp"
 #include "drivers/wav_writer.hpp"
-// GCC 12 reports a false -Wstringop-overflow inside indep::write_wav's header bytes (vector::insert of a
-// 4-byte tag) when it is inlined here; the code is the same as in test_indep_signals.
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wstringop-overflow"
 #include "support/indep_signals.hpp"
-#pragma GCC diagnostic pop
 
 using ridgewatch::test::run_cli;
 namespace fs = std::filesystem;

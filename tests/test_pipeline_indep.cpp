@@ -10,12 +10,6 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
-// GCC 12 at -O2 reports a false stringop-overflow inside std::vector<unsigned char>::insert once
-// indep::write_wav is inlined here (a 4-byte tag into a vector that has just grown).
-#if defined(__GNUC__) && !defined(__clang__)
-#pragma GCC diagnostic ignored "-Wstringop-overflow"
-#endif
-
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
