@@ -4,6 +4,7 @@
 #include <charconv>
 #include <chrono>
 #include <cmath>
+#include <type_traits>
 #include <nlohmann/json.hpp>
 
 #include "cli/event_json.hpp"
@@ -54,17 +55,10 @@ void sample(std::string& out, const std::string& name_and_labels, std::uint64_t 
 
 // A JSON number: the shortest text that reads back as the same value; NaN and infinities (which JSON
 // cannot spell) as null, as nlohmann::json writes them.
-void json_number(std::string& out, double v) {
-  if (!std::isfinite(v)) {
-    out += "null";
-    return;
-  }
-  char buf[32];
-  const auto r = std::to_chars(buf, buf + sizeof buf, v);
-  out.append(buf, r.ptr);
-}
-
-void json_number(std::string& out, float v) {  // shortest for the float itself, not its double widening
+// A float is written as the shortest text for the float itself, not for its double widening.
+template <typename Real>
+  requires std::is_floating_point_v<Real>
+void json_number(std::string& out, Real v) {
   if (!std::isfinite(v)) {
     out += "null";
     return;

@@ -93,16 +93,22 @@ TEST(CustomEffects, CliExitsTwoOnABadExpression) {
   EXPECT_NE(r.err.find("column 13"), std::string::npos) << r.err;
 }
 
-TEST(CustomEffects, ForceEqualToACatalogueEffectSimulatesTheSameRecord) {
-  // quadratic_damping's force d2 q'|q'| (core/model/effects/quadratic_damping.cpp, a separate C++
-  // implementation) written as an expression: both go through the same integrator, so the records
-  // agree to rounding (1e-9 of the peak: muparser's byte code and the C++ differ in the order of
-  // the multiplications only).
+// quadratic_damping's force as a user-defined effect "squeeze" with one parameter d2 (N s²/m²),
+// registered for this thread; each test that registers it clears the list at its end.
+void register_squeeze() {
   rm::CustomEffectDefinition def;
   def.name = "squeeze";
   def.force = "-d2 * v * abs(v)";
   def.parameters = {{"d2", "N s^2/m^2", 0.0, 1e9, 0.0, 0.0, ""}};
   rm::set_user_effects({{rm::make_custom_effect(def), {}}});
+}
+
+TEST(CustomEffects, ForceEqualToACatalogueEffectSimulatesTheSameRecord) {
+  // quadratic_damping's force d2 q'|q'| (core/model/effects/quadratic_damping.cpp, a separate C++
+  // implementation) written as an expression: both go through the same integrator, so the records
+  // agree to rounding (1e-9 of the peak: muparser's byte code and the C++ differ in the order of
+  // the multiplications only).
+  register_squeeze();
   rm::RigParameters rig;
   rm::SimulationSettings s;
   s.duration_s = 0.2;
@@ -259,11 +265,7 @@ TEST(CustomEffects, DuplicateOfACatalogueEffectFitsTheSameParameters) {
   // quadratic_damping (2e6 N s²/m², the README sweep's size) hidden; the fit with the catalogue
   // effect and the fit with the same force as an expression must agree: each value inside the
   // other's 95 % interval (they differ only in the log range's lower end and the start).
-  rm::CustomEffectDefinition def;
-  def.name = "squeeze";
-  def.force = "-d2 * v * abs(v)";
-  def.parameters = {{"d2", "N s^2/m^2", 0.0, 1e9, 0.0, 0.0, ""}};
-  rm::set_user_effects({{rm::make_custom_effect(def), {}}});
+  register_squeeze();
   rm::RigParameters rig;
   rig.crack_angle_rad = 1.0;
   rm::SimulationSettings s;

@@ -85,6 +85,24 @@ struct Synthetic {
   std::vector<std::size_t> spikes;
 };
 
+// Feeds x[warm..] to the processor in blocks of `block` samples and counts the heap allocations made
+// meanwhile: by operator new, and by the C allocation functions (replaced above, except under the
+// sanitizers). RIDGEWATCH_TRAP_ALLOC=1 stops in the debugger at the first C allocation.
+struct Allocations {
+  long by_new = 0;
+  long by_c = 0;
+};
+Allocations process_counting(StreamProcessor& p, const std::vector<float>& x, std::size_t warm, std::size_t block,
+                             std::vector<ImpactEvent>& events) {
+  const long new_before = ridgewatch::test::allocations();
+  const long c_before = g_c_allocations.load();
+  g_trap_malloc = std::getenv("RIDGEWATCH_TRAP_ALLOC") != nullptr;
+  for (std::size_t i = warm; i < x.size(); i += block)
+    p.process(std::span<const float>(x.data() + i, std::min(block, x.size() - i)), i, events);
+  g_trap_malloc = false;
+  return {ridgewatch::test::allocations() - new_before, g_c_allocations.load() - c_before};
+}
+
 struct SynthOptions {
   double seconds = 1.0;
   double period_s = 0.040;      // one impact per revolution at 1500 rpm
@@ -534,18 +552,9 @@ TEST(StreamProcessor, ProcessAllocatesNothingAfterWarmUp) {
       p.process(std::span<const float>(s.x.data(), warm), 0, events);
       ASSERT_GE(events.size(), 2u) << "warm-up must analyse impacts";
       const std::size_t warm_events = events.size();
-      const long new_before = ridgewatch::test::allocations();
-      const long c_before = g_c_allocations.load();
-      g_trap_malloc = std::getenv("RIDGEWATCH_TRAP_ALLOC") != nullptr;
-      for (std::size_t i = warm; i < s.x.size(); i += block) {
-        const std::size_t len = std::min(block, s.x.size() - i);
-        p.process(std::span<const float>(s.x.data() + i, len), i, events);
-      }
-      g_trap_malloc = false;
-      const long new_allocs = ridgewatch::test::allocations() - new_before;
-      const long c_allocs = g_c_allocations.load() - c_before;
-      EXPECT_EQ(new_allocs, 0) << to_string(method) << " period " << period;
-      EXPECT_EQ(c_allocs, 0) << to_string(method) << " period " << period;
+      const Allocations a = process_counting(p, s.x, warm, block, events);
+      EXPECT_EQ(a.by_new, 0) << to_string(method) << " period " << period;
+      EXPECT_EQ(a.by_c, 0) << to_string(method) << " period " << period;
       // The counted stretch did analyse impacts, ML fits included.
       EXPECT_GT(events.size(), warm_events + 10);
       std::size_t ok = 0;
@@ -589,14 +598,9 @@ TEST(StreamProcessor, LineComponentFitAllocatesNothing) {
   p.process(std::span<const float>(s.x.data(), warm), 0, events);
   ASSERT_GE(events.size(), 2u);
   const std::size_t warm_events = events.size();
-  const long new_before = ridgewatch::test::allocations();
-  const long c_before = g_c_allocations.load();
-  for (std::size_t i = warm; i < s.x.size(); i += block) {
-    const std::size_t len = std::min(block, s.x.size() - i);
-    p.process(std::span<const float>(s.x.data() + i, len), i, events);
-  }
-  EXPECT_EQ(ridgewatch::test::allocations() - new_before, 0);
-  EXPECT_EQ(g_c_allocations.load() - c_before, 0);
+  const Allocations a = process_counting(p, s.x, warm, block, events);
+  EXPECT_EQ(a.by_new, 0);
+  EXPECT_EQ(a.by_c, 0);
   // The line is resolved: the counted stretch has ok events within 10 % of the truth (the one-mode
   // fit's intervals exceed max_ci_ratio here: without the line component none was ok).
   std::size_t ok = 0;
@@ -659,12 +663,9 @@ TEST(StreamProcessor, HalfRatePathAt51kHz) {
   p.process(std::span<const float>(s.x.data(), warm), 0, events);
   ASSERT_GE(events.size(), 2u);
   const std::size_t warm_events = events.size();
-  const long new_before = ridgewatch::test::allocations();
-  const long c_before = g_c_allocations.load();
-  for (std::size_t i = warm; i < s.x.size(); i += block)
-    p.process(std::span<const float>(s.x.data() + i, std::min(block, s.x.size() - i)), i, events);
-  EXPECT_EQ(ridgewatch::test::allocations() - new_before, 0);
-  EXPECT_EQ(g_c_allocations.load() - c_before, 0);
+  const Allocations counted = process_counting(p, s.x, warm, block, events);
+  EXPECT_EQ(counted.by_new, 0);
+  EXPECT_EQ(counted.by_c, 0);
   EXPECT_GT(events.size(), warm_events + 5);
 }
 
