@@ -1,6 +1,6 @@
 // `ridgewatch analyze FILE [--config F] [--rig R] [--channel N | --all-channels] [--rate HZ]`: the
 // streaming pipeline (core/pipeline/stream_processor.hpp, the same code ridgewatchd runs) over a file
-// as fast as possible. stdout: one JSON line per impact event (cli/event_json.hpp), nothing else.
+// as fast as possible. stdout: one JSON line per impact event (app/event_json.hpp), nothing else.
 // stderr: a summary line per stream (and, with a rig, the measured f against the model's f_d).
 //
 // Streams: one channel (--channel, default 0); a derived channel (source.combine of --config: a linear
@@ -26,12 +26,12 @@
 
 #include <nlohmann/json.hpp>
 
-#include "cli/args.hpp"
+#include "app/args.hpp"
 #include "cli/commands.hpp"
 #include "cli/replay_flags.hpp"
-#include "cli/config_yaml.hpp"
-#include "cli/event_json.hpp"
-#include "cli/rig_defaults.hpp"
+#include "app/config_yaml.hpp"
+#include "app/event_json.hpp"
+#include "app/rig_defaults.hpp"
 #include "core/pipeline/stream_processor.hpp"
 #include "drivers/combined_source.hpp"
 #include "drivers/replay_file.hpp"

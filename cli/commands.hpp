@@ -1,11 +1,13 @@
 // Subcommands of `ridgewatch`. Each takes the arguments after the subcommand name, writes its result
-// on `out` and diagnostics on `err`, and returns an exit code (see cli/args.hpp). UsageError and
-// drivers::InputError may propagate; main() maps them to exit codes 2 and 3.
+// on `out` and diagnostics on `err`, and returns an exit code (see app/args.hpp). UsageError and
+// drivers::InputError may propagate; main() maps them to exit codes 2 and 3 (app/args.hpp).
 #pragma once
 
 #include <iosfwd>
 #include <string>
 #include <vector>
+
+#include "cli/app_names.hpp"
 
 namespace ridgewatch::cli {
 

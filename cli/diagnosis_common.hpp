@@ -9,9 +9,10 @@
 #include <string>
 #include <vector>
 
-#include "cli/args.hpp"
+#include "cli/app_names.hpp"
+#include "app/args.hpp"
 #include "cli/replay_flags.hpp"
-#include "cli/rig_yaml.hpp"
+#include "app/rig_yaml.hpp"
 #include "core/diagnosis/diagnose.hpp"
 #include "drivers/replay_file.hpp"
 

@@ -6,10 +6,10 @@
 #include <string>
 #include <vector>
 
-#include "cli/args.hpp"
+#include "app/args.hpp"
 #include "cli/commands.hpp"
 #include "cli/format_table.hpp"
-#include "cli/usage.hpp"
+#include "app/usage.hpp"
 #include "drivers/sample_source.hpp"
 #include "ridgewatch_version.hpp"
 

@@ -7,7 +7,7 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "cli/args.hpp"
+#include "app/args.hpp"
 #include "cli/commands.hpp"
 #include "cli/plot_diagnosis.hpp"
 #include "cli/plot_modes.hpp"

@@ -11,7 +11,7 @@
 #include <sstream>
 #include <system_error>
 
-#include "cli/args.hpp"
+#include "app/args.hpp"
 #include "cli/plot_svg.hpp"
 #include "core/dsp/morlet_cwt.hpp"
 

@@ -22,6 +22,7 @@
 #include <utility>
 #include <vector>
 
+#include "cli/app_names.hpp"
 #include "core/diagnosis/diagnose.hpp"
 
 namespace ridgewatch::cli::plots {

@@ -3,7 +3,8 @@
 
 #include <string>
 
-#include "cli/args.hpp"
+#include "cli/app_names.hpp"
+#include "app/args.hpp"
 #include "drivers/replay_file.hpp"
 
 namespace ridgewatch::cli {

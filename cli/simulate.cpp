@@ -11,9 +11,9 @@
 #include <set>
 #include <stdexcept>
 
-#include "cli/args.hpp"
+#include "app/args.hpp"
 #include "cli/commands.hpp"
-#include "cli/rig_yaml.hpp"
+#include "app/rig_yaml.hpp"
 #include "core/model/effect_registry.hpp"
 #include "core/model/simulator.hpp"
 #include "drivers/wav_writer.hpp"

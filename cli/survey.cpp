@@ -14,14 +14,14 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "cli/args.hpp"
+#include "app/args.hpp"
 #include "cli/commands.hpp"
-#include "cli/config_yaml.hpp"
+#include "app/config_yaml.hpp"
 #include "cli/plot_diagnosis.hpp"
 #include "cli/plot_svg.hpp"
 #include "cli/replay_flags.hpp"
-#include "cli/rig_yaml.hpp"
-#include "cli/yaml_reader.hpp"
+#include "app/rig_yaml.hpp"
+#include "app/yaml_reader.hpp"
 #include "drivers/replay_file.hpp"
 
 namespace ridgewatch::cli {

@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "cli/app_names.hpp"
 #include "core/survey/survey.hpp"
 
 namespace ridgewatch::cli {

@@ -26,12 +26,12 @@ bool file_exists(const fs::path& p) {
 
 }  // namespace
 
-CaptureStore::CaptureStore(cli::CaptureConfig config) : config_(std::move(config)) { scan(); }
+CaptureStore::CaptureStore(app::CaptureConfig config) : config_(std::move(config)) { scan(); }
 
 bool CaptureStore::selected(const pipeline::ImpactEvent& e) const {
   if (config_.select == "not_ok") return e.status != pipeline::ImpactStatus::ok;
   if (config_.select == "alarm")
-    return e.alarm.level == pipeline::AlarmLevel::alert || e.alarm.level == pipeline::AlarmLevel::danger;
+    return e.alarm.level == trend::AlarmLevel::alert || e.alarm.level == trend::AlarmLevel::danger;
   return true;
 }
 

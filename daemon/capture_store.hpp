@@ -12,14 +12,14 @@
 #include <span>
 #include <string>
 
-#include "cli/config_yaml.hpp"
+#include "app/config_yaml.hpp"
 #include "core/pipeline/impact_event.hpp"
 
 namespace ridgewatch::daemon {
 
 class CaptureStore {
  public:
-  explicit CaptureStore(cli::CaptureConfig config);
+  explicit CaptureStore(app::CaptureConfig config);
 
   /// Whether `select` wants this event: all; not_ok (status not ok); alarm (level alert or danger).
   bool selected(const pipeline::ImpactEvent& e) const;
@@ -27,7 +27,7 @@ class CaptureStore {
   std::string write(const pipeline::ImpactEvent& e, const std::string& source, std::span<const float> window,
                     std::uint64_t window_first_index, double sample_rate_hz);
 
-  const cli::CaptureConfig& config() const { return config_; }
+  const app::CaptureConfig& config() const { return config_; }
   std::uint64_t written() const { return written_; }   ///< captures written by this store
   std::uint64_t removed() const { return removed_; }   ///< captures removed to keep the limits
   std::uint64_t failed() const { return failed_; }     ///< captures that could not be written
@@ -44,7 +44,7 @@ class CaptureStore {
   void enforce_limits();
   void remove_entry(const Entry& e);
 
-  cli::CaptureConfig config_;
+  app::CaptureConfig config_;
   std::deque<Entry> entries_;  ///< oldest first
   std::uint64_t bytes_ = 0, written_ = 0, removed_ = 0, failed_ = 0;
   std::size_t files_ = 0;  // sum of entries_[i].files

@@ -14,9 +14,9 @@
 #include <thread>
 #include <vector>
 
-#include "cli/args.hpp"
-#include "cli/event_json.hpp"
-#include "cli/rig_defaults.hpp"
+#include "app/args.hpp"
+#include "app/event_json.hpp"
+#include "app/rig_defaults.hpp"
 #include "core/pipeline/stream_processor.hpp"
 #include "core/rt/spsc_ring_buffer.hpp"
 #include "daemon/capture_store.hpp"
@@ -63,7 +63,7 @@ void Daemon::clear_requests() {
 
 struct Daemon::Impl {
   DaemonOptions options;
-  cli::RidgewatchConfig cfg;
+  app::RidgewatchConfig cfg;
   DaemonStats stats;
   double fs = 0.0;
   bool live = false;
@@ -78,7 +78,7 @@ struct Daemon::Impl {
   std::unique_ptr<CaptureStore> captures;  // null: output.capture.dir empty
   pipeline::ImpactEvent last_event;        // for the status line
   bool have_last_event = false;
-  std::optional<cli::ModelGap> model_gap;  // measured f vs the rig model's f_d (config key rig)
+  std::optional<app::ModelGap> model_gap;  // measured f vs the rig model's f_d (config key rig)
 
   std::thread acquisition;
   std::atomic<bool> acq_stop{false};
@@ -149,16 +149,16 @@ struct Daemon::Impl {
   void make_processor() {
     pipeline::PipelineConfig p = cfg.pipeline;
     p.sample_rate_hz = fs;
-    cli::resolve_format_defaults(p, source->info().full_scale);  // clip_level from the sample format
+    app::resolve_format_defaults(p, source->info().full_scale);  // clip_level from the sample format
     try {
       pipeline::validate(p);
     } catch (const std::invalid_argument& e) {
-      throw cli::UsageError(std::string("pipeline.") + e.what() + " (at the source's sample rate " +
+      throw app::UsageError(std::string("pipeline.") + e.what() + " (at the source's sample rate " +
                             std::to_string(fs) + " Hz)");
     }
     processor = std::make_unique<pipeline::StreamProcessor>(p);
     model_gap.reset();
-    if (const cli::RigModelInfo& m = cfg.rig_model; !m.path.empty()) {
+    if (const app::RigModelInfo& m = cfg.rig_model; !m.path.empty()) {
       model_gap.emplace(m.f_d_hz);
       spdlog::info("rig {}: model f_d {:.1f} Hz, mesh {:.1f} Hz; f_expected_hz {:.1f} ({}), detector band {:.0f}-{:.0f} Hz ({})",
                    m.path, m.f_d_hz, m.mesh_hz, p.analyzer.f_expected_hz, m.f_expected ? "rig" : "configuration",
@@ -244,7 +244,7 @@ struct Daemon::Impl {
       const std::string wall = live ? iso8601_utc(wall_at_start + std::chrono::duration_cast<std::chrono::system_clock::duration>(
                                                                       std::chrono::duration<double>(e.t_s)))
                                     : std::string();
-      cli::append_event_json(batch, e, source_name, wall);
+      app::append_event_json(batch, e, source_name, wall);
       batch += '\n';
     }
     if (net) net->on_events(events, batch);  // MQTT: spooled before the event log is written
@@ -284,9 +284,9 @@ struct Daemon::Impl {
       if (e.alarm.transition()) {
         const auto level = e.alarm.level;
         const std::string msg = fmt::format("alarm {} -> {} at t = {:.3f} s (sample {}), zeta = {:.5f}",
-                                            pipeline::to_string(e.alarm.previous), pipeline::to_string(level), e.t_s,
+                                            trend::to_string(e.alarm.previous), trend::to_string(level), e.t_s,
                                             e.sample_index, e.zeta);
-        if (level == pipeline::AlarmLevel::alert || level == pipeline::AlarmLevel::danger)
+        if (level == trend::AlarmLevel::alert || level == trend::AlarmLevel::danger)
           spdlog::warn("{}", msg);
         else
           spdlog::info("{}", msg);
@@ -295,8 +295,8 @@ struct Daemon::Impl {
   }
 
   // Fail-safe relays: energised = healthy, so a dead daemon or a cut wire reads as an alarm.
-  void drive_relays(pipeline::AlarmLevel level) {
-    using pipeline::AlarmLevel;
+  void drive_relays(trend::AlarmLevel level) {
+    using trend::AlarmLevel;
     if (gpio.alert) gpio.alert->set_healthy(level != AlarmLevel::alert && level != AlarmLevel::danger);
     if (gpio.danger) gpio.danger->set_healthy(level != AlarmLevel::danger);
     const std::uint64_t errors = (gpio.alert ? gpio.alert->errors() : 0) + (gpio.danger ? gpio.danger->errors() : 0);
@@ -355,12 +355,12 @@ struct Daemon::Impl {
 
   // A new store when the capture settings change (start, SIGHUP); the counts carry on.
   void open_captures() {
-    const cli::CaptureConfig& c = cfg.output.capture;
+    const app::CaptureConfig& c = cfg.output.capture;
     if (c.dir.empty()) {
       captures.reset();
       return;
     }
-    const auto& o = captures ? captures->config() : cli::CaptureConfig{};
+    const auto& o = captures ? captures->config() : app::CaptureConfig{};
     if (captures && o.dir == c.dir && o.max_files == c.max_files && o.max_bytes == c.max_bytes && o.select == c.select)
       return;
     captures = std::make_unique<CaptureStore>(c);
@@ -374,7 +374,7 @@ struct Daemon::Impl {
       spdlog::info("SIGHUP: no configuration file to reload; reopening outputs");
     } else {
       try {
-        cli::RidgewatchConfig next = cli::load_config_file(options.config_path);
+        app::RidgewatchConfig next = app::load_config_file(options.config_path);
         if (options.overrides) options.overrides(next);
         if (next.source.type != cfg.source.type || next.source.replay.path != cfg.source.replay.path ||
             next.source.alsa.device != cfg.source.alsa.device)
@@ -418,12 +418,12 @@ struct Daemon::Impl {
   std::string status_text() const {
     std::string text = fmt::format("{} samples, {} impacts ({} ok), alarm {}", stats.samples, stats.events,
                                    stats.events_ok,
-                                   processor ? pipeline::to_string(processor->trend().state().level) : "?");
+                                   processor ? trend::to_string(processor->trend().state().level) : "?");
     if (have_last_event)
       text += fmt::format(", last zeta {} ({})", format_zeta(last_event.zeta), pipeline::to_string(last_event.status));
     if (processor) {
       // EWMA z-score in EWMA standard deviations, the unit of alert_sigma/danger_sigma (trend_monitor.cpp).
-      const pipeline::AlarmState& a = processor->trend().state();
+      const trend::AlarmState& a = processor->trend().state();
       const double lambda = cfg.pipeline.trend.ewma_lambda;
       const double z = (a.ewma_ln_zeta - a.baseline_ln_zeta) / (a.baseline_ln_sd * std::sqrt(lambda / (2.0 - lambda)));
       if (std::isfinite(a.baseline_ln_zeta))
@@ -465,7 +465,7 @@ int Daemon::run() {
                                          : open_source(d.cfg, d.options.config_path.empty() ? "configuration" : d.options.config_path);
   } catch (const drivers::InputError& e) {
     spdlog::critical("{}", e.what());
-    return cli::kExitBadInput;
+    return app::kExitBadInput;
   }
   const drivers::SourceInfo& info = d.source->info();
   d.fs = info.sample_rate_hz;
@@ -480,9 +480,9 @@ int Daemon::run() {
       d.gpio = d.options.gpio_factory ? d.options.gpio_factory(d.cfg.gpio) : open_gpio(d.cfg.gpio);
     } catch (const drivers::GpioError& e) {
       spdlog::critical("{}", e.what());
-      return cli::kExitBadInput;
+      return app::kExitBadInput;
     }
-    d.drive_relays(pipeline::AlarmLevel::learning);  // healthy until the trend says otherwise
+    d.drive_relays(trend::AlarmLevel::learning);  // healthy until the trend says otherwise
   }
 
   // Ring: at least ring_buffer_s of samples, plus history for capture look-back.
@@ -623,12 +623,12 @@ int Daemon::run() {
   if (!d.acq_error.empty()) {
     spdlog::error("source failed: {}", d.acq_error);
     ++d.stats.source_errors;
-    return cli::kExitBadInput;
+    return app::kExitBadInput;
   }
-  return cli::kExitOk;
+  return app::kExitOk;
 }
 
-GpioLines open_gpio(const cli::GpioConfig& config) {
+GpioLines open_gpio(const app::GpioConfig& config) {
   GpioLines lines;
   auto line = [&](int offset) {
     drivers::GpioLineConfig c;

@@ -14,7 +14,7 @@
 #include <memory>
 #include <string>
 
-#include "cli/config_yaml.hpp"
+#include "app/config_yaml.hpp"
 #include "drivers/gpio.hpp"
 #include "drivers/sample_source.hpp"
 
@@ -28,17 +28,17 @@ struct GpioLines {
 };
 
 /// Opens the configured libgpiod lines (throws drivers::GpioError naming the chip and line).
-GpioLines open_gpio(const cli::GpioConfig& config);
+GpioLines open_gpio(const app::GpioConfig& config);
 
 struct DaemonOptions {
-  cli::RidgewatchConfig config;
+  app::RidgewatchConfig config;
   std::string config_path;  ///< re-read on SIGHUP; empty: reload keeps the current configuration
   /// Command-line overrides re-applied after every reload (so --replay/--events survive SIGHUP).
-  std::function<void(cli::RidgewatchConfig&)> overrides;
+  std::function<void(app::RidgewatchConfig&)> overrides;
   /// Replaces open_gpio (tests pass fake lines). Called once at start when set or gpio.enabled.
-  std::function<GpioLines(const cli::GpioConfig&)> gpio_factory;
+  std::function<GpioLines(const app::GpioConfig&)> gpio_factory;
   /// Replaces open_source (tests inject an AlsaSource on a local ALSA configuration with failure seams).
-  std::function<std::unique_ptr<drivers::SampleSource>(const cli::SourceConfig&)> source_factory;
+  std::function<std::unique_ptr<drivers::SampleSource>(const app::SourceConfig&)> source_factory;
   /// Stop acquiring after this many samples (0: no limit): the end of input then, as for a file
   /// (accelerated soak runs with --loop; `ridgewatchd --max-samples N`).
   std::uint64_t max_samples = 0;
@@ -87,10 +87,10 @@ class Daemon {
 };
 
 /// Opens the configured source (replay file with pacing/looping, or ALSA). Throws drivers::InputError
-/// (file or device problems) or cli::UsageError (configuration).
-std::unique_ptr<drivers::SampleSource> open_source(const cli::SourceConfig& config);
+/// (file or device problems) or app::UsageError (configuration).
+std::unique_ptr<drivers::SampleSource> open_source(const app::SourceConfig& config);
 /// The same, with source.combine (a derived channel; its mesh_velocity radii from config.rig):
 /// UsageError naming `config_name` and the source.combine key for a channel the file or device lacks.
-std::unique_ptr<drivers::SampleSource> open_source(const cli::RidgewatchConfig& config, const std::string& config_name);
+std::unique_ptr<drivers::SampleSource> open_source(const app::RidgewatchConfig& config, const std::string& config_name);
 
 }  // namespace ridgewatch::daemon

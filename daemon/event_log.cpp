@@ -14,7 +14,7 @@
 #include <sstream>
 #include <vector>
 
-#include "cli/event_json.hpp"
+#include "app/event_json.hpp"
 #include "drivers/wav_writer.hpp"
 
 namespace ridgewatch::daemon {
@@ -127,7 +127,7 @@ std::string event_csv_row(const pipeline::ImpactEvent& e, const std::string& sou
   std::ostringstream o;
   o << num(e.t_s) << ',' << e.sample_index << ',' << quoted << ',' << num(e.f_hz) << ',' << num(e.zeta) << ','
     << num(e.zeta_ci95_lo) << ',' << num(e.zeta_ci95_hi) << ',' << num(e.snr_db) << ',' << pipeline::to_string(e.status)
-    << ',' << pipeline::to_string(e.alarm.level);
+    << ',' << trend::to_string(e.alarm.level);
   return o.str();
 }
 
@@ -142,7 +142,7 @@ std::string write_capture(const std::string& dir, const pipeline::ImpactEvent& e
                                    {"sample_rate_hz", fs},
                                    {"first_sample_index", window_first_index},
                                    {"onset_sample_index", e.sample_index},
-                                   {"event", nlohmann::ordered_json::parse(cli::event_json(e, source))}};
+                                   {"event", nlohmann::ordered_json::parse(app::event_json(e, source))}};
     std::ofstream f(base + ".json");
     f << side.dump(2) << "\n";
     f.close();

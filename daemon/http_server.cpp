@@ -4,7 +4,7 @@
 
 #include <thread>
 
-#include "cli/args.hpp"
+#include "app/args.hpp"
 #include "daemon/web_index_html.hpp"
 
 namespace ridgewatch::daemon {
@@ -22,7 +22,7 @@ struct HttpServer::Impl {
 
 HttpServer::HttpServer(const std::string& listen, const Telemetry& telemetry) : impl_(std::make_unique<Impl>()) {
   const auto colon = listen.rfind(':');
-  if (colon == std::string::npos) throw cli::UsageError("http.listen: must be ADDRESS:PORT (got '" + listen + "')");
+  if (colon == std::string::npos) throw app::UsageError("http.listen: must be ADDRESS:PORT (got '" + listen + "')");
   std::string host = listen.substr(0, colon);
   if (host.size() >= 2 && host.front() == '[' && host.back() == ']') host = host.substr(1, host.size() - 2);
   const int port = std::stoi(listen.substr(colon + 1));
@@ -50,10 +50,10 @@ HttpServer::HttpServer(const std::string& listen, const Telemetry& telemetry) : 
   });
   if (port == 0) {
     impl_->port = s.bind_to_any_port(host);
-    if (impl_->port < 0) throw cli::UsageError("http.listen: cannot listen on '" + listen + "'");
+    if (impl_->port < 0) throw app::UsageError("http.listen: cannot listen on '" + listen + "'");
   } else {
     if (!s.bind_to_port(host, port))
-      throw cli::UsageError("http.listen: cannot listen on '" + listen + "' (address in use or not local?)");
+      throw app::UsageError("http.listen: cannot listen on '" + listen + "' (address in use or not local?)");
     impl_->port = port;
   }
   impl_->thread = std::thread([this] { impl_->server.listen_after_bind(); });

@@ -12,7 +12,7 @@ namespace ridgewatch::daemon {
 
 class HttpServer {
  public:
-  /// listen: "ADDRESS:PORT" (port 0: any free port, see port()). Throws cli::UsageError naming
+  /// listen: "ADDRESS:PORT" (port 0: any free port, see port()). Throws app::UsageError naming
   /// http.listen when the address cannot be bound.
   HttpServer(const std::string& listen, const Telemetry& telemetry);
   ~HttpServer();

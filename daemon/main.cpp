@@ -13,9 +13,9 @@
 #include <string>
 #include <vector>
 
-#include "cli/args.hpp"
-#include "cli/config_yaml.hpp"
-#include "cli/usage.hpp"
+#include "app/args.hpp"
+#include "app/config_yaml.hpp"
+#include "app/usage.hpp"
 #include "cli/survey.hpp"
 #include "daemon/daemon.hpp"
 #include "daemon/relay_test.hpp"
@@ -27,6 +27,7 @@
 namespace {
 
 namespace cli = ridgewatch::cli;
+namespace app = ridgewatch::app;
 using ridgewatch::daemon::Daemon;
 
 extern "C" void on_signal(int sig) {
@@ -60,7 +61,7 @@ void setup_logging(const std::string& level) {
 // --survey SECONDS: record that long from the configured source (nothing else is started: no event
 // log, no relays, no notification) and print the survey of cli/survey.hpp; --write-config OUT merges
 // the proposal into a copy of --config (or of the defaults).
-int run_survey_mode(const cli::Args& args, const cli::RidgewatchConfig& config, const std::optional<std::string>& config_path) {
+int run_survey_mode(const app::Args& args, const app::RidgewatchConfig& config, const std::optional<std::string>& config_path) {
   const double seconds = args.number("--survey", 0.0, 0.5, 3600.0);
   cli::SurveyOutput output;
   output.write_config = args.value("--write-config");
@@ -85,33 +86,33 @@ int run_survey_mode(const cli::Args& args, const cli::RidgewatchConfig& config, 
 }
 
 int run(const std::vector<std::string>& argv) {
-  // The flags come from the usage table (cli/usage.cpp), which also makes --help and the man page.
-  const cli::Args args = cli::usage::parse(argv, cli::usage::daemon());
-  if (!args.positional().empty()) throw cli::UsageError("unexpected argument '" + args.positional().front() + "'");
+  // The flags come from the usage table (app/usage.cpp), which also makes --help and the man page.
+  const app::Args args = app::usage::parse(argv, app::usage::daemon());
+  if (!args.positional().empty()) throw app::UsageError("unexpected argument '" + args.positional().front() + "'");
   if (args.has("--version")) {
     std::cout << "ridgewatchd " << RIDGEWATCH_VERSION << "\n";
-    return cli::kExitOk;
+    return app::kExitOk;
   }
   if (args.has("--print-defaults")) {
-    std::cout << cli::to_yaml(cli::default_config());
-    return cli::kExitOk;
+    std::cout << app::to_yaml(app::default_config());
+    return app::kExitOk;
   }
   if (args.has("--list-devices")) {
     std::cout << "ALSA capture devices (source.alsa.device):\n"
               << ridgewatch::drivers::describe_alsa_capture_devices() << "\nGPIO chips and lines (gpio section):\n"
               << ridgewatch::drivers::describe_gpio_chips();
-    return cli::kExitOk;
+    return app::kExitOk;
   }
   if (const auto file = args.value("--check-config")) {
-    const cli::RidgewatchConfig checked = cli::load_config_file(*file);  // throws UsageError naming the key
-    cli::combine_gains(checked, *file);  // the daemon has no --rig: mesh_velocity needs the rig key
+    const app::RidgewatchConfig checked = app::load_config_file(*file);  // throws UsageError naming the key
+    app::combine_gains(checked, *file);  // the daemon has no --rig: mesh_velocity needs the rig key
     std::cout << *file << ": ok\n";
-    return cli::kExitOk;
+    return app::kExitOk;
   }
 
   const auto config_path = args.value("--config");
   // Command-line overrides, applied on top of the file at start and after every reload.
-  auto overrides = [&args](cli::RidgewatchConfig& c) {
+  auto overrides = [&args](app::RidgewatchConfig& c) {
     if (const auto f = args.value("--replay")) {
       c.source.type = "replay";
       c.source.replay.path = *f;
@@ -134,22 +135,22 @@ int run(const std::vector<std::string>& argv) {
     if (const auto e = args.value("--capture-dir")) c.output.capture.dir = *e;
     if (const auto e = args.value("--log-level")) c.logging.level = *e;
   };
-  cli::RidgewatchConfig config = config_path ? cli::load_config_file(*config_path) : cli::default_config();
+  app::RidgewatchConfig config = config_path ? app::load_config_file(*config_path) : app::default_config();
   overrides(config);
   if (args.has("--test-relays")) {
-    if (!config.gpio.enabled) throw cli::UsageError("--test-relays: gpio.enabled is false in the configuration");
+    if (!config.gpio.enabled) throw app::UsageError("--test-relays: gpio.enabled is false in the configuration");
     ridgewatch::daemon::GpioLines lines = ridgewatch::daemon::open_gpio(config.gpio);  // GpioError: exit 3
     return ridgewatch::daemon::test_relays(lines, std::cin, std::cout, args.has("--yes"), std::chrono::seconds(2));
   }
-  if (args.has("--yes")) throw cli::UsageError("--yes goes with --test-relays");
+  if (args.has("--yes")) throw app::UsageError("--yes goes with --test-relays");
   if (config.source.type == "replay" && config.source.replay.path.empty())
-    throw cli::UsageError("no input: set source.replay.path in the configuration or pass --replay FILE");
+    throw app::UsageError("no input: set source.replay.path in the configuration or pass --replay FILE");
   if (const auto lvl = args.value("--log-level");
       lvl && *lvl != "trace" && *lvl != "debug" && *lvl != "info" && *lvl != "warn" && *lvl != "error")
-    throw cli::UsageError("--log-level: '" + *lvl + "' is not one of trace, debug, info, warn, error");
+    throw app::UsageError("--log-level: '" + *lvl + "' is not one of trace, debug, info, warn, error");
 
   if (args.has("--survey")) return run_survey_mode(args, config, config_path);
-  if (args.has("--write-config")) throw cli::UsageError("--write-config: only with --survey SECONDS");
+  if (args.has("--write-config")) throw app::UsageError("--write-config: only with --survey SECONDS");
 
   setup_logging(config.logging.level);
   install_signal_handlers();
@@ -168,18 +169,18 @@ int main(int argc, char** argv) {
   ridgewatch::drivers::silence_alsa_lib_errors();  // the daemon names the device in its own messages
   try {
     return run(std::vector<std::string>(argv + 1, argv + argc));
-  } catch (const cli::UsageError& e) {
+  } catch (const app::UsageError& e) {
     std::cerr << "ridgewatchd: " << e.what() << "\n";
-    return cli::kExitUsage;
-  } catch (const cli::HelpRequested&) {
-    std::cout << cli::usage::command_help(cli::usage::daemon(), "ridgewatchd");
-    return cli::kExitOk;
+    return app::kExitUsage;
+  } catch (const app::HelpRequested&) {
+    std::cout << app::usage::command_help(app::usage::daemon(), "ridgewatchd");
+    return app::kExitOk;
   } catch (const ridgewatch::drivers::InputError& e) {
     std::cerr << "ridgewatchd: " << e.what() << "\n";
-    return cli::kExitBadInput;
+    return app::kExitBadInput;
   } catch (const ridgewatch::drivers::GpioError& e) {
     std::cerr << "ridgewatchd: " << e.what() << "\n";
-    return cli::kExitBadInput;
+    return app::kExitBadInput;
   } catch (const std::exception& e) {
     std::cerr << "ridgewatchd: internal error: " << e.what() << "\n";
     return 1;

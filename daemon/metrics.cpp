@@ -7,7 +7,7 @@
 #include <type_traits>
 #include <nlohmann/json.hpp>
 
-#include "cli/event_json.hpp"
+#include "app/event_json.hpp"
 
 namespace ridgewatch::daemon {
 
@@ -101,7 +101,7 @@ Telemetry::Telemetry(std::string source_name, std::string version, const trend::
 void Telemetry::on_events(std::span<const pipeline::ImpactEvent> events, std::string_view last_json) {
   if (events.empty()) return;
   // The JSON of the newest event, outside the lock.
-  std::string last = last_json.empty() ? cli::event_json(events.back(), source_) : std::string(last_json);
+  std::string last = last_json.empty() ? app::event_json(events.back(), source_) : std::string(last_json);
   std::lock_guard<std::mutex> lock(mutex_);
   for (const auto& e : events) {
     ++events_;
@@ -245,7 +245,7 @@ std::string Telemetry::state_json() const {
   j["source"] = source_;
   j["version"] = version_;
   j["events"] = events_;
-  j["alarm"] = {{"level", pipeline::to_string(alarm_.level)},
+  j["alarm"] = {{"level", trend::to_string(alarm_.level)},
                 {"since_t_s", alarm_since_t_s_},
                 {"cusum_up", alarm_.cusum_up},
                 {"cusum_down", alarm_.cusum_down}};
@@ -298,7 +298,7 @@ std::string Telemetry::state_json() const {
     out += ",\"status\":\"";
     out += pipeline::to_string(c.status);
     out += "\",\"alarm\":\"";
-    out += pipeline::to_string(c.alarm);
+    out += trend::to_string(c.alarm);
     out += "\"}";
   }
   out += "],\"envelopes\":[";
@@ -330,7 +330,7 @@ std::string Telemetry::status_json() const {
   json j;
   j["state"] = "online";
   j["source"] = source_;
-  j["alarm"] = pipeline::to_string(alarm_.level);
+  j["alarm"] = trend::to_string(alarm_.level);
   j["baseline_zeta"] = zeta_of(alarm_.baseline_ln_zeta);
   j["ewma_zeta"] = zeta_of(alarm_.ewma_ln_zeta);
   j["events"] = events_;

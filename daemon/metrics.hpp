@@ -63,7 +63,7 @@ class Telemetry {
     std::uint64_t n;  // 1-based event number
     double t_s, zeta, lo, hi, f_hz, snr_db;
     pipeline::ImpactStatus status;
-    pipeline::AlarmLevel alarm;
+    trend::AlarmLevel alarm;
   };
   struct Envelope {
     std::uint64_t n;
@@ -82,7 +82,7 @@ class Telemetry {
   mutable std::mutex mutex_;
   std::array<std::uint64_t, kStatuses> by_status_{};
   std::uint64_t events_ = 0, transitions_ = 0;
-  pipeline::AlarmState alarm_;
+  trend::AlarmState alarm_;
   double alarm_since_t_s_ = 0.0;
   std::string last_event_json_;
   DaemonCounters counters_;

@@ -16,8 +16,8 @@
 #include <mutex>
 #include <nlohmann/json.hpp>
 
-#include "cli/args.hpp"
-#include "cli/event_json.hpp"
+#include "app/args.hpp"
+#include "app/event_json.hpp"
 
 namespace ridgewatch::daemon {
 
@@ -54,18 +54,18 @@ std::string safe_level(const std::string& s) {
 
 std::string read_password(const std::string& path) {
   std::ifstream in(path);
-  if (!in) throw cli::UsageError("output.mqtt.password_file: cannot read '" + path + "'");
+  if (!in) throw app::UsageError("output.mqtt.password_file: cannot read '" + path + "'");
   std::string line;
   std::getline(in, line);
   while (!line.empty() && (line.back() == '\r' || line.back() == '\n')) line.pop_back();
-  if (line.empty()) throw cli::UsageError("output.mqtt.password_file: '" + path + "' is empty (the password is its first line)");
+  if (line.empty()) throw app::UsageError("output.mqtt.password_file: '" + path + "' is empty (the password is its first line)");
   return line;
 }
 
 void check_readable(const std::string& key, const std::string& path) {
   if (path.empty()) return;
   std::ifstream in(path);
-  if (!in) throw cli::UsageError("output.mqtt.tls." + key + ": cannot read '" + path + "'");
+  if (!in) throw app::UsageError("output.mqtt.tls." + key + ": cannot read '" + path + "'");
 }
 
 }  // namespace
@@ -73,15 +73,15 @@ void check_readable(const std::string& key, const std::string& path) {
 std::string default_topic_prefix(const std::string& source_name) { return "ridgewatch/" + safe_level(source_name); }
 std::string default_client_id(const std::string& source_name) { return "ridgewatch-" + safe_level(source_name); }
 
-static Spool open_spool(const cli::MqttConfig& c) {
+static Spool open_spool(const app::MqttConfig& c) {
   try {
     return Spool(c.spool_dir, static_cast<std::uint64_t>(c.spool_max_mb * 1e6));
   } catch (const SpoolError& e) {
-    throw cli::UsageError(std::string("output.mqtt.spool_dir: ") + e.what());
+    throw app::UsageError(std::string("output.mqtt.spool_dir: ") + e.what());
   }
 }
 
-MqttSink::MqttSink(const cli::MqttConfig& config, const std::string& source_name, const Telemetry* telemetry,
+MqttSink::MqttSink(const app::MqttConfig& config, const std::string& source_name, const Telemetry* telemetry,
                    double status_interval_s)
     : cfg_(config),
       prefix_(config.topic_prefix.empty() ? default_topic_prefix(source_name) : config.topic_prefix),
@@ -126,9 +126,9 @@ void MqttSink::signal_work() {
 }
 
 void MqttSink::publish_alarm(const pipeline::ImpactEvent& e) {
-  std::string msg = "{\"level\":\"" + std::string(pipeline::to_string(e.alarm.level)) + "\",\"previous\":\"" +
-                    std::string(pipeline::to_string(e.alarm.previous)) + "\",\"event\":";
-  cli::append_event_json(msg, e, source_);
+  std::string msg = "{\"level\":\"" + std::string(trend::to_string(e.alarm.level)) + "\",\"previous\":\"" +
+                    std::string(trend::to_string(e.alarm.previous)) + "\",\"event\":";
+  app::append_event_json(msg, e, source_);
   msg += '}';
   std::lock_guard<std::mutex> lock(mutex_);
   alarms_.push_back(std::move(msg));

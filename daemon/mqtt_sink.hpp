@@ -28,7 +28,7 @@
 #include <thread>
 #include <vector>
 
-#include "cli/config_yaml.hpp"
+#include "app/config_yaml.hpp"
 #include "core/pipeline/impact_event.hpp"
 #include "daemon/metrics.hpp"
 #include "daemon/spool.hpp"
@@ -44,10 +44,10 @@ std::string default_client_id(const std::string& source_name);
 
 class MqttSink {
  public:
-  /// Opens the spool and reads the password file; throws cli::UsageError naming the key when either
+  /// Opens the spool and reads the password file; throws app::UsageError naming the key when either
   /// fails or the TLS files are not usable. `telemetry` supplies the status message (may be null; it
   /// must be fully set up before start()).
-  MqttSink(const cli::MqttConfig& config, const std::string& source_name, const Telemetry* telemetry,
+  MqttSink(const app::MqttConfig& config, const std::string& source_name, const Telemetry* telemetry,
            double status_interval_s);
   ~MqttSink();
   MqttSink(const MqttSink&) = delete;
@@ -91,7 +91,7 @@ class MqttSink {
   static void cb_connect(struct mosquitto*, void* self, int rc);
   static void cb_publish(struct mosquitto*, void* self, int mid);
 
-  cli::MqttConfig cfg_;
+  app::MqttConfig cfg_;
   std::string prefix_, client_id_, source_, password_;
   const Telemetry* telemetry_;
   std::chrono::duration<double> status_interval_;

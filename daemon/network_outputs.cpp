@@ -6,10 +6,10 @@
 
 namespace ridgewatch::daemon {
 
-NetworkOutputs::NetworkOutputs(const cli::RidgewatchConfig& cfg, const std::string& source_name, double fs)
+NetworkOutputs::NetworkOutputs(const app::RidgewatchConfig& cfg, const std::string& source_name, double fs)
     : telemetry_(source_name, RIDGEWATCH_VERSION, cfg.pipeline.trend, fs) {}
 
-std::unique_ptr<NetworkOutputs> NetworkOutputs::start(const cli::RidgewatchConfig& cfg, const std::string& source_name,
+std::unique_ptr<NetworkOutputs> NetworkOutputs::start(const app::RidgewatchConfig& cfg, const std::string& source_name,
                                                       double fs) {
   if (cfg.output.mqtt.host.empty() && cfg.http.listen.empty()) return nullptr;
   std::unique_ptr<NetworkOutputs> n(new NetworkOutputs(cfg, source_name, fs));

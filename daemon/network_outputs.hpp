@@ -9,7 +9,7 @@
 #include <string>
 #include <string_view>
 
-#include "cli/config_yaml.hpp"
+#include "app/config_yaml.hpp"
 #include "daemon/http_server.hpp"
 #include "daemon/metrics.hpp"
 #include "daemon/mqtt_sink.hpp"
@@ -18,9 +18,9 @@ namespace ridgewatch::daemon {
 
 class NetworkOutputs {
  public:
-  /// Null when neither output.mqtt.host nor http.listen is set. Throws cli::UsageError naming the key
+  /// Null when neither output.mqtt.host nor http.listen is set. Throws app::UsageError naming the key
   /// (spool directory, password file, TLS files, listen address).
-  static std::unique_ptr<NetworkOutputs> start(const cli::RidgewatchConfig& cfg, const std::string& source_name,
+  static std::unique_ptr<NetworkOutputs> start(const app::RidgewatchConfig& cfg, const std::string& source_name,
                                                double sample_rate_hz);
   ~NetworkOutputs();
 
@@ -43,7 +43,7 @@ class NetworkOutputs {
   int http_port() const { return http_ ? http_->port() : 0; }
 
  private:
-  NetworkOutputs(const cli::RidgewatchConfig& cfg, const std::string& source_name, double fs);
+  NetworkOutputs(const app::RidgewatchConfig& cfg, const std::string& source_name, double fs);
   Telemetry telemetry_;
   std::unique_ptr<MqttSink> mqtt_;
   std::unique_ptr<HttpServer> http_;

@@ -3,7 +3,7 @@
 #include <cmath>
 #include <stdexcept>
 
-#include "cli/args.hpp"
+#include "app/args.hpp"
 #include "daemon/daemon.hpp"
 #include "drivers/alsa_source.hpp"
 #include "drivers/combined_source.hpp"
@@ -13,9 +13,9 @@
 namespace ridgewatch::daemon {
 
 namespace {
-std::unique_ptr<drivers::SampleSource> open_with_gains(const cli::SourceConfig& config, const std::vector<double>& gains) {
+std::unique_ptr<drivers::SampleSource> open_with_gains(const app::SourceConfig& config, const std::vector<double>& gains) {
   if (config.type == "alsa") {
-    const cli::AlsaSourceConfig& a = config.alsa;
+    const app::AlsaSourceConfig& a = config.alsa;
     drivers::AlsaSourceConfig c;
     c.device = a.device;
     c.rate_hz = static_cast<unsigned>(std::lround(a.rate_hz));
@@ -32,7 +32,7 @@ std::unique_ptr<drivers::SampleSource> open_with_gains(const cli::SourceConfig& 
     try {
       drivers::validate(c);
     } catch (const std::invalid_argument& e) {
-      throw cli::UsageError(std::string("source.alsa.") + e.what());
+      throw app::UsageError(std::string("source.alsa.") + e.what());
     }
     return std::make_unique<drivers::AlsaSource>(c);
   }
@@ -50,12 +50,12 @@ std::unique_ptr<drivers::SampleSource> open_with_gains(const cli::SourceConfig& 
 }
 }  // namespace
 
-std::unique_ptr<drivers::SampleSource> open_source(const cli::SourceConfig& config) { return open_with_gains(config, {}); }
+std::unique_ptr<drivers::SampleSource> open_source(const app::SourceConfig& config) { return open_with_gains(config, {}); }
 
-std::unique_ptr<drivers::SampleSource> open_source(const cli::RidgewatchConfig& c, const std::string& config_name) {
+std::unique_ptr<drivers::SampleSource> open_source(const app::RidgewatchConfig& c, const std::string& config_name) {
   if (c.source.combine.type == "none") return open_with_gains(c.source, {});
   if (c.source.type == "alsa") {
-    const std::vector<double> g = cli::combine_gains(c, config_name, c.source.alsa.channels);
+    const std::vector<double> g = app::combine_gains(c, config_name, c.source.alsa.channels);
     std::vector<double> gains(c.source.alsa.channels, 0.0);
     for (std::size_t i = 0; i < g.size(); ++i) gains[c.source.combine.channels[i]] += g[i];
     return open_with_gains(c.source, gains);
@@ -64,7 +64,7 @@ std::unique_ptr<drivers::SampleSource> open_source(const cli::RidgewatchConfig& 
   drivers::ReplayOptions probe;
   if (c.source.replay.rate_hz > 0) probe.csv_rate_hz = c.source.replay.rate_hz;
   const std::size_t available = drivers::open_replay(c.source.replay.path, probe)->info().channels;
-  return open_with_gains(c.source, cli::combine_gains(c, config_name, available));
+  return open_with_gains(c.source, app::combine_gains(c, config_name, available));
 }
 
 std::uint64_t take_source_gap(drivers::SampleSource& source) {

@@ -1,5 +1,5 @@
 // Build-time generator: writes the man pages and the bash completion from the usage table
-// (cli/usage.cpp) and the documented configuration (config/ridgewatch.yaml), so they cannot drift
+// (app/usage.cpp) and the documented configuration (config/ridgewatch.yaml), so they cannot drift
 // from `--help` and the configuration.
 //   gen_docs CONFIG_YAML OUT_DIR  ->  OUT_DIR/ridgewatch.1 ridgewatchd.8 ridgewatch.yaml.5 ridgewatch.bash-completion
 #include <fstream>
@@ -7,7 +7,7 @@
 #include <sstream>
 #include <string>
 
-#include "cli/usage.hpp"
+#include "app/usage.hpp"
 #include "ridgewatch_version.hpp"
 
 namespace {
@@ -23,7 +23,7 @@ bool write(const std::string& path, const std::string& text) {
 }  // namespace
 
 int main(int argc, char** argv) {
-  namespace usage = ridgewatch::cli::usage;
+  namespace usage = ridgewatch::app::usage;
   if (argc != 3) {
     std::cerr << "usage: gen_docs CONFIG_YAML OUT_DIR\n";
     return 2;

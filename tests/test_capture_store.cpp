@@ -17,8 +17,8 @@
 #include <sstream>
 #include <vector>
 
-#include "cli/args.hpp"
-#include "cli/config_yaml.hpp"
+#include "app/args.hpp"
+#include "app/config_yaml.hpp"
 #include "daemon/capture_store.hpp"
 #include "daemon/relay_test.hpp"
 #include "drivers/gpio_fake.hpp"
@@ -28,7 +28,7 @@
 namespace fs = std::filesystem;
 using namespace std::chrono_literals;
 using ridgewatch::daemon::CaptureStore;
-using ridgewatch::pipeline::AlarmLevel;
+using ridgewatch::trend::AlarmLevel;
 using ridgewatch::pipeline::ImpactEvent;
 using ridgewatch::pipeline::ImpactStatus;
 using ridgewatch::test::ChildProcess;
@@ -50,8 +50,8 @@ class CaptureStoreTest : public ::testing::Test {
     if (mounted_) ::umount2(mounted_->c_str(), MNT_DETACH);
     fs::remove_all(dir_);
   }
-  ridgewatch::cli::CaptureConfig config(std::uint64_t max_files, std::uint64_t max_bytes, const std::string& select = "all") {
-    ridgewatch::cli::CaptureConfig c;
+  ridgewatch::app::CaptureConfig config(std::uint64_t max_files, std::uint64_t max_bytes, const std::string& select = "all") {
+    ridgewatch::app::CaptureConfig c;
     c.dir = (dir_ / "cap").string();
     c.max_files = max_files;
     c.max_bytes = max_bytes;
@@ -209,7 +209,7 @@ TEST_F(CaptureStoreTest, MaxBytesBelowTheFreeSpaceNeverFillsTheDisk) {
 }
 
 TEST(CaptureConfig, NewSectionOldSpellingAndErrors) {
-  using ridgewatch::cli::parse_config;
+  using ridgewatch::app::parse_config;
   const auto c = parse_config("output:\n  capture:\n    dir: /x\n    max_files: 100\n    max_bytes: 0\n    select: not_ok\n", "t.yaml");
   EXPECT_EQ(c.output.capture.dir, "/x");
   EXPECT_EQ(c.output.capture.max_files, 100u);
@@ -220,11 +220,11 @@ TEST(CaptureConfig, NewSectionOldSpellingAndErrors) {
   EXPECT_EQ(old.output.capture.dir, "/old");
   EXPECT_EQ(old.output.capture.max_files, 1000u);
   // --print-defaults writes the new layout only.
-  EXPECT_EQ(ridgewatch::cli::to_yaml(old).find("capture_dir"), std::string::npos);
+  EXPECT_EQ(ridgewatch::app::to_yaml(old).find("capture_dir"), std::string::npos);
   auto message = [](const std::string& text) {
     try {
       parse_config(text, "t.yaml");
-    } catch (const ridgewatch::cli::UsageError& e) {
+    } catch (const ridgewatch::app::UsageError& e) {
       return std::string(e.what());
     }
     return std::string("no error");

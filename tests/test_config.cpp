@@ -4,10 +4,10 @@
 #include <fstream>
 #include <sstream>
 
-#include "cli/args.hpp"
-#include "cli/config_yaml.hpp"
+#include "app/args.hpp"
+#include "app/config_yaml.hpp"
 
-using namespace ridgewatch::cli;
+using namespace ridgewatch::app;
 
 namespace {
 

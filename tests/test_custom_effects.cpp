@@ -14,8 +14,8 @@
 #include <unistd.h>
 #include <vector>
 
-#include "cli/args.hpp"
-#include "cli/rig_yaml.hpp"
+#include "app/args.hpp"
+#include "app/rig_yaml.hpp"
 #include "cli_runner.hpp"
 #include "core/diagnosis/diagnose.hpp"
 #include "core/model/custom_effect.hpp"
@@ -24,7 +24,7 @@
 
 namespace rd = ridgewatch::diagnosis;
 namespace rm = ridgewatch::model;
-namespace rc = ridgewatch::cli;
+namespace rc = ridgewatch::app;
 
 namespace {
 

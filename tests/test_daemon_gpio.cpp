@@ -32,7 +32,7 @@ class SharedRelay : public drivers::RelayOutput {
 TEST(DaemonGpio, RelaysDropOutOnTheDampingStepAndTachoGivesShaftSpeed) {
   const auto dir = fs::temp_directory_path() / ("ridgewatchd-gpio-" + std::to_string(::getpid()));
   fs::create_directories(dir);
-  cli::RidgewatchConfig cfg = cli::default_config();
+  app::RidgewatchConfig cfg = app::default_config();
   cfg.source.replay.path = std::string(RIDGEWATCH_SOURCE_DIR) + "/replay-data/sim-damping-step.wav";
   cfg.source.replay.speed = 0.0;
   cfg.output.events = (dir / "ev.jsonl").string();
@@ -47,7 +47,7 @@ TEST(DaemonGpio, RelaysDropOutOnTheDampingStepAndTachoGivesShaftSpeed) {
 
   daemon::DaemonOptions options;
   options.config = cfg;
-  options.gpio_factory = [&](const cli::GpioConfig&) {
+  options.gpio_factory = [&](const app::GpioConfig&) {
     daemon::GpioLines lines;
     lines.alert = std::make_unique<SharedRelay>(alert);
     lines.danger = std::make_unique<SharedRelay>(danger);

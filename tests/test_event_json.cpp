@@ -1,8 +1,8 @@
-// The event-line writer (cli/event_json.cpp) against an independent reference: the same object built
-// as an nlohmann::ordered_json document, as the contract in cli/event_json.hpp describes it. Parsed
+// The event-line writer (app/event_json.cpp) against an independent reference: the same object built
+// as an nlohmann::ordered_json document, as the contract in app/event_json.hpp describes it. Parsed
 // values must be identical (doubles bit-for-bit: the writer promises round-trip numbers), keys in the
 // contract's order, non-finite numbers null, strings escaped so that the parser gets them back.
-#include "cli/event_json.hpp"
+#include "app/event_json.hpp"
 
 #include <gtest/gtest.h>
 
@@ -33,7 +33,7 @@ Json reference(const rp::ImpactEvent& e, const std::string& source, const std::s
   j["amplitude"] = num(e.amplitude);
   j["window_s"] = num(e.window_s);
   j["status"] = std::string(rp::to_string(e.status));
-  j["alarm"] = std::string(rp::to_string(e.alarm.level));
+  j["alarm"] = std::string(ridgewatch::trend::to_string(e.alarm.level));
   j["alarm_detail"] = {{"ewma_ln_zeta", num(e.alarm.ewma_ln_zeta)},
                        {"cusum_up", num(e.alarm.cusum_up)},
                        {"cusum_down", num(e.alarm.cusum_down)},
@@ -54,8 +54,8 @@ rp::ImpactEvent typical() {
   e.snr_db = 61.3;
   e.amplitude = 0.34596758602255734;
   e.window_s = 0.0344921875;
-  e.alarm.level = rp::AlarmLevel::alert;
-  e.alarm.previous = rp::AlarmLevel::normal;
+  e.alarm.level = ridgewatch::trend::AlarmLevel::alert;
+  e.alarm.previous = ridgewatch::trend::AlarmLevel::normal;
   e.alarm.baseline_ln_zeta = std::log(0.024);
   e.alarm.ewma_ln_zeta = -3.6;
   e.alarm.cusum_up = 5.25;
@@ -63,7 +63,7 @@ rp::ImpactEvent typical() {
 }
 
 void expect_same(const rp::ImpactEvent& e, const std::string& source, const std::string& wall = {}) {
-  const std::string line = ridgewatch::cli::event_json(e, source, wall);
+  const std::string line = ridgewatch::app::event_json(e, source, wall);
   EXPECT_EQ(line.find('\n'), std::string::npos) << line;
   const Json got = Json::parse(line);  // throws (test error) on malformed JSON
   // ordered_json compares objects element by element, so this also checks the key order.
@@ -82,7 +82,7 @@ TEST(EventJson, NonFiniteNumbersAreNullAndIntegralValuesKeepAFloatSpelling) {
   e.status = rp::ImpactStatus::too_short;
   e.f_hz = std::numeric_limits<double>::infinity();
   expect_same(e, "x.wav");
-  const std::string line = ridgewatch::cli::event_json(e, "x.wav");
+  const std::string line = ridgewatch::app::event_json(e, "x.wav");
   EXPECT_NE(line.find("\"zeta\":null"), std::string::npos) << line;
   EXPECT_NE(line.find("\"f_hz\":null"), std::string::npos) << line;
   EXPECT_NE(line.find("\"cusum_up\":0.0"), std::string::npos) << line;
@@ -98,7 +98,7 @@ TEST(EventJson, RandomDoublesRoundTripExactly) {
     e.zeta = mantissa(rng) * std::pow(10.0, exponent(rng));
     e.f_hz = std::round(mantissa(rng) * 1e6);  // integral values too
     e.sample_index = rng();
-    const Json got = Json::parse(ridgewatch::cli::event_json(e, "s"));
+    const Json got = Json::parse(ridgewatch::app::event_json(e, "s"));
     ASSERT_EQ(got["zeta"].get<double>(), e.zeta);
     ASSERT_EQ(got["f_hz"].get<double>(), e.f_hz);
     ASSERT_EQ(got["sample_index"].get<std::uint64_t>(), e.sample_index);
@@ -110,7 +110,7 @@ TEST(EventJson, SourceNamesAreEscapedAndInvalidUtf8IsReplaced) {
   expect_same(typical(), "tab\there\nnewline\x01.wav");
   expect_same(typical(), "m\xC3\xA9sure-\xE2\x82\xAC.wav");  // valid UTF-8 (é, €)
   // Invalid UTF-8 (a Latin-1 file name): the writer must not throw or emit invalid JSON.
-  const std::string line = ridgewatch::cli::event_json(typical(), "mesure-\xE9t\xE9.wav");
+  const std::string line = ridgewatch::app::event_json(typical(), "mesure-\xE9t\xE9.wav");
   const Json got = Json::parse(line);
   EXPECT_EQ(got["source"].get<std::string>(), "mesure-\xEF\xBF\xBDt\xEF\xBF\xBD.wav");  // U+FFFD
 }

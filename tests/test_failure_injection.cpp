@@ -340,13 +340,13 @@ TEST_F(FailureInjection, AlsaDeviceLossBecomesALoggedCountedGapAndProcessingResu
   // Real backoff sleep (the default): the outage lasts >= 200 ms, i.e. >= 5120 frames lost.
 
   ridgewatch::daemon::DaemonOptions options;
-  options.config = ridgewatch::cli::default_config();
+  options.config = ridgewatch::app::default_config();
   // Replay semantics for the ring (the file plugin has no pacing: wait for the consumer instead of
   // overrunning, so the only gap is the injected one); the source itself is the AlsaSource.
   options.config.source.type = "replay";
   options.config.output.events = (dir_ / "ev.jsonl").string();
   options.config.output.source_name = "alsa-test";
-  options.source_factory = [&](const ridgewatch::cli::SourceConfig&) -> std::unique_ptr<rd::SampleSource> {
+  options.source_factory = [&](const ridgewatch::app::SourceConfig&) -> std::unique_ptr<rd::SampleSource> {
     rd::AlsaSourceConfig c;
     c.device = "rwtest";
     c.rate_hz = 25600;

@@ -13,7 +13,7 @@
 #include <sstream>
 #include <thread>
 
-#include "cli/config_yaml.hpp"
+#include "app/config_yaml.hpp"
 #include "cli_runner.hpp"
 #include "daemon/daemon.hpp"
 #include "daemon/http_server.hpp"
@@ -85,7 +85,7 @@ TEST(Metrics, PromtoolAcceptsThemAndCountersEqualTheEventLog) {
   const auto dir = temp_dir("http-metrics");
   const auto [file, samples] = stepped_record(dir);
   ridgewatch::daemon::DaemonOptions options;
-  options.config = ridgewatch::cli::default_config();
+  options.config = ridgewatch::app::default_config();
   options.config.source.replay.path = file;
   options.config.source.replay.speed = 0.0;
   options.config.pipeline.trend.baseline_events = 50;

@@ -11,8 +11,8 @@
 #include <thread>
 
 #include "cli_runner.hpp"
-#include "cli/args.hpp"
-#include "cli/config_yaml.hpp"
+#include "app/args.hpp"
+#include "app/config_yaml.hpp"
 #include "daemon/spool.hpp"
 #include "net_test_support.hpp"
 #include "process_runner.hpp"
@@ -410,7 +410,7 @@ TEST(MqttBroker, PasswordFromFileNeverLogged) {
 // ---- configuration ------------------------------------------------------------------------------
 
 TEST(MqttConfig, BadValuesNameTheKey) {
-  using ridgewatch::cli::parse_config;
+  using ridgewatch::app::parse_config;
   const std::vector<std::pair<std::string, std::string>> cases = {
       {"output:\n  mqtt:\n    host: \"h\"\n    qos: 2\n", "output.mqtt.qos"},
       {"output:\n  mqtt:\n    host: \"h\"\n    keepalive_s: 1\n", "output.mqtt.keepalive_s"},
@@ -428,7 +428,7 @@ TEST(MqttConfig, BadValuesNameTheKey) {
     try {
       parse_config(text, "t.yaml");
       ADD_FAILURE() << "accepted: " << text;
-    } catch (const ridgewatch::cli::UsageError& e) {
+    } catch (const ridgewatch::app::UsageError& e) {
       EXPECT_NE(std::string(e.what()).find(key), std::string::npos) << e.what();
     }
   }
@@ -441,5 +441,5 @@ TEST(MqttConfig, BadValuesNameTheKey) {
   EXPECT_EQ(c.output.mqtt.qos, 0u);
   EXPECT_EQ(c.output.mqtt.tls.ca_file, "/ca");
   EXPECT_EQ(c.http.listen, "[::1]:9420");
-  EXPECT_EQ(ridgewatch::cli::to_yaml(parse_config(ridgewatch::cli::to_yaml(c), "again")), ridgewatch::cli::to_yaml(c));
+  EXPECT_EQ(ridgewatch::app::to_yaml(parse_config(ridgewatch::app::to_yaml(c), "again")), ridgewatch::app::to_yaml(c));
 }

@@ -12,8 +12,8 @@
 #include <string>
 #include <vector>
 
-#include "cli/args.hpp"
-#include "cli/rig_yaml.hpp"
+#include "app/args.hpp"
+#include "app/rig_yaml.hpp"
 #include "core/model/effect_registry.hpp"
 
 namespace fs = std::filesystem;
@@ -202,7 +202,7 @@ TEST_F(SimulateCli, BadFlagsExitTwoNamingTheFlag) {
 }
 
 TEST(RigYaml, PaperRigLoadsWithTheAppendixBValues) {
-  const auto cfg = ridgewatch::cli::load_rig_yaml(kPaperRig);
+  const auto cfg = ridgewatch::app::load_rig_yaml(kPaperRig);
   EXPECT_DOUBLE_EQ(cfg.rig.pinion_inertia_kg_m2, 0.093);
   EXPECT_DOUBLE_EQ(cfg.rig.wheel_base_radius_m, 0.08466);
   ASSERT_EQ(cfg.rig.stiffness_harmonics.size(), 3u);
@@ -214,6 +214,6 @@ TEST(RigYaml, PaperRigLoadsWithTheAppendixBValues) {
   const std::string text = slurp(kPaperRig);
   std::string with_dz = text;
   with_dz.replace(with_dz.find("damping_ratio: 0.024"), 20, "d_z: 7140.935814889481");
-  EXPECT_NEAR(ridgewatch::cli::parse_rig_yaml(with_dz, "x.yaml").rig.damping_ratio, 0.024, 1e-12);
-  EXPECT_THROW(ridgewatch::cli::parse_rig_yaml("gear: {}", "x.yaml"), ridgewatch::cli::UsageError);
+  EXPECT_NEAR(ridgewatch::app::parse_rig_yaml(with_dz, "x.yaml").rig.damping_ratio, 0.024, 1e-12);
+  EXPECT_THROW(ridgewatch::app::parse_rig_yaml("gear: {}", "x.yaml"), ridgewatch::app::UsageError);
 }

@@ -19,10 +19,10 @@
 #include <string>
 #include <vector>
 
-#include "cli/args.hpp"
-#include "cli/config_yaml.hpp"
-#include "cli/rig_defaults.hpp"
-#include "cli/rig_yaml.hpp"
+#include "app/args.hpp"
+#include "app/config_yaml.hpp"
+#include "app/rig_defaults.hpp"
+#include "app/rig_yaml.hpp"
 #include "cli_runner.hpp"
 #include "drivers/combined_source.hpp"
 // GCC 12 -O2 reports a false -Wstringop-overflow inside indep::write_wav's header bytes (vector insert
@@ -74,8 +74,8 @@ double paper_fd_hz() {
 double band_gain_db(double df, double half) { return -10.0 * std::log10(1.0 + std::pow(df / half, 8)); }
 
 TEST_F(Streams, RigBandIsTheModelFrequencyBetweenTheMeshLines) {
-  const cli::RigConfig rig = cli::load_rig_yaml(kPaperRig);
-  const cli::RigBand b = cli::rig_band(rig.rig);
+  const app::RigConfig rig = app::load_rig_yaml(kPaperRig);
+  const app::RigBand b = app::rig_band(rig.rig);
   // The paper: f0 ≈ 859 Hz (5397 s⁻¹); its own numbers give f0 = 860.13 Hz, f_d = 859.88 Hz.
   EXPECT_NEAR(b.f_d_hz, paper_fd_hz(), 1e-9 * paper_fd_hz());
   EXPECT_NEAR(b.f_d_hz, 859.88, 0.005);
@@ -91,7 +91,7 @@ TEST_F(Streams, RigBandIsTheModelFrequencyBetweenTheMeshLines) {
   // Faster: f_z = 22 x 30 Hz = 660 Hz, 200 Hz below f_d: the band narrows to keep it 20 dB down.
   model::RigParameters fast = rig.rig;
   fast.pinion_speed_rpm = 1800;
-  const cli::RigBand n = cli::rig_band(fast);
+  const app::RigBand n = app::rig_band(fast);
   const double nh = (n.hi_hz - n.lo_hz) / 2;
   EXPECT_LT(nh, 0.15 * n.f_d_hz);
   EXPECT_NEAR(band_gain_db(n.f_d_hz - 660.0, nh), -20.0, 0.01);
@@ -101,7 +101,7 @@ TEST_F(Streams, RigBandIsTheModelFrequencyBetweenTheMeshLines) {
   // f_d 20 Hz from a mesh line (f_z = 22 x 38 Hz = 836 Hz): cannot be done, a note says so.
   model::RigParameters close = rig.rig;
   close.pinion_speed_rpm = 38 * 60;
-  const cli::RigBand c = cli::rig_band(close);
+  const app::RigBand c = app::rig_band(close);
   EXPECT_NE(c.note.find("836.0 Hz"), std::string::npos) << c.note;
   EXPECT_NEAR((c.hi_hz - c.lo_hz) / 2, 0.05 * c.f_d_hz, 1e-9);
 }
@@ -109,28 +109,28 @@ TEST_F(Streams, RigBandIsTheModelFrequencyBetweenTheMeshLines) {
 TEST_F(Streams, ConfigRigKeySetsUnsetKeysOnlyAndResolvesBesideTheFile) {
   fs::copy_file(kPaperRig, dir_ / "rig.yaml");
   // Relative to the configuration file's directory.
-  cli::RidgewatchConfig c = cli::load_config_file(write("a.yaml", "rig: rig.yaml\n"));
+  app::RidgewatchConfig c = app::load_config_file(write("a.yaml", "rig: rig.yaml\n"));
   EXPECT_NEAR(c.pipeline.analyzer.f_expected_hz, paper_fd_hz(), 1e-9);
   EXPECT_NEAR(c.pipeline.detector.band_lo_hz, 0.85 * paper_fd_hz(), 1e-9);
   EXPECT_TRUE(c.rig_model.f_expected && c.rig_model.band);
   // Explicit keys win; the other one still comes from the rig.
-  c = cli::load_config_file(write("b.yaml", "rig: rig.yaml\npipeline:\n  analyzer:\n    f_expected_hz: 900\n"));
+  c = app::load_config_file(write("b.yaml", "rig: rig.yaml\npipeline:\n  analyzer:\n    f_expected_hz: 900\n"));
   EXPECT_EQ(c.pipeline.analyzer.f_expected_hz, 900.0);
   EXPECT_FALSE(c.rig_model.f_expected);
   EXPECT_NEAR(c.pipeline.detector.band_hi_hz, 1.15 * paper_fd_hz(), 1e-9);
-  c = cli::load_config_file(write("c.yaml", "rig: rig.yaml\npipeline:\n  detector:\n    band_lo_hz: 700\n"));
+  c = app::load_config_file(write("c.yaml", "rig: rig.yaml\npipeline:\n  detector:\n    band_lo_hz: 700\n"));
   EXPECT_EQ(c.pipeline.detector.band_lo_hz, 700.0);
   EXPECT_EQ(c.pipeline.detector.band_hi_hz, 980.0);  // the band is one setting: default, not half the rig's
   EXPECT_FALSE(c.rig_model.band);
   // No rig: unchanged defaults.
-  c = cli::load_config_file(write("d.yaml", "pipeline:\n  trend:\n    alert_sigma: 3\n"));
+  c = app::load_config_file(write("d.yaml", "pipeline:\n  trend:\n    alert_sigma: 3\n"));
   EXPECT_EQ(c.pipeline.analyzer.f_expected_hz, 854.0);
   EXPECT_TRUE(c.rig_model.path.empty());
   // A missing rig file: exit 2 naming the key and the file.
   try {
-    cli::load_config_file(write("e.yaml", "rig: no-such-rig.yaml\n"));
+    app::load_config_file(write("e.yaml", "rig: no-such-rig.yaml\n"));
     FAIL() << "no error";
-  } catch (const cli::UsageError& e) {
+  } catch (const app::UsageError& e) {
     EXPECT_NE(std::string(e.what()).find("e.yaml: rig: "), std::string::npos) << e.what();
     EXPECT_NE(std::string(e.what()).find("no-such-rig.yaml"), std::string::npos) << e.what();
   }
@@ -367,9 +367,9 @@ TEST_F(Streams, RadiiThatDisagreeWithTheTeethAreWarned) {
   ASSERT_NE(pos, std::string::npos);
   rig.replace(pos, 12, "rb2: 0.0931 ");  // 10 % too large
   const std::string rig_path = write("bad-rig.yaml", rig);
-  cli::RidgewatchConfig c = cli::load_config_file(write("a.yaml", "rig: bad-rig.yaml\n"));
+  app::RidgewatchConfig c = app::load_config_file(write("a.yaml", "rig: bad-rig.yaml\n"));
   EXPECT_NE(c.rig_model.radius_note.find("differs from pinion_teeth/wheel_teeth"), std::string::npos) << c.rig_model.radius_note;
-  c = cli::load_config_file(write("b.yaml", "rig: " + kPaperRig + "\n"));
+  c = app::load_config_file(write("b.yaml", "rig: " + kPaperRig + "\n"));
   EXPECT_TRUE(c.rig_model.radius_note.empty()) << c.rig_model.radius_note;  // the paper rig: 1.9 %
 }
 

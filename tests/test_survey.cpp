@@ -14,9 +14,9 @@
 #include <unistd.h>
 
 #include "bench/survey_cases.hpp"
-#include "cli/args.hpp"
+#include "app/args.hpp"
 #include "cli/commands.hpp"
-#include "cli/config_yaml.hpp"
+#include "app/config_yaml.hpp"
 
 #include "core/survey/kurtogram.hpp"
 #include "drivers/replay_file.hpp"
@@ -159,6 +159,7 @@ TEST(SurveyRealData, HammerHitRepeatedFiveTimes) {
 
 TEST(SurveyCli, WriteConfigMergesIntoACopyAndRefusesTheBaseItself) {
   namespace cli = ridgewatch::cli;
+  namespace app = ridgewatch::app;
   const std::string dir = temp_dir("cli");
   survey_cases::Case c;
   c.duration_s = 3;
@@ -173,7 +174,7 @@ TEST(SurveyCli, WriteConfigMergesIntoACopyAndRefusesTheBaseItself) {
   std::ostringstream out, err;
   ASSERT_EQ(cli::run_survey({dir + "/rec.wav", "--config", dir + "/base.yaml", "--write-config", dir + "/out.yaml"}, out, err), 0)
       << err.str();
-  const auto merged = cli::load_config_file(dir + "/out.yaml");
+  const auto merged = app::load_config_file(dir + "/out.yaml");
   EXPECT_EQ(merged.output.csv, "/var/log/ridgewatch/events.csv");
   EXPECT_EQ(merged.pipeline.analyzer.min_snr_db, 17.0);
   EXPECT_NEAR(merged.pipeline.analyzer.f_expected_hz / c.f_hz, 1.0, 0.01);
@@ -183,7 +184,7 @@ TEST(SurveyCli, WriteConfigMergesIntoACopyAndRefusesTheBaseItself) {
   EXPECT_NE(out.str().find("pipeline:\n  detector:\n    band_lo_hz: "), std::string::npos);
   std::ostringstream o2, e2;
   EXPECT_THROW(cli::run_survey({dir + "/rec.wav", "--config", dir + "/base.yaml", "--write-config", dir + "/base.yaml"}, o2, e2),
-               cli::UsageError);
+               app::UsageError);
 }
 
 }  // namespace

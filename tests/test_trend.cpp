@@ -20,6 +20,7 @@
 #include <vector>
 
 #include "allocation_counter.hpp"
+#include "core/pipeline/impact_event.hpp"  // the events the stream processor feeds
 #include "core/trend/trend_monitor.hpp"
 
 // allocation_counter.hpp lets a test assert that update() does not allocate (real-time contract in
@@ -28,8 +29,8 @@
 namespace ridgewatch::trend {
 namespace {
 
-using pipeline::AlarmLevel;
-using pipeline::AlarmState;
+using trend::AlarmLevel;
+using trend::AlarmState;
 using pipeline::ImpactEvent;
 using pipeline::ImpactStatus;
 
@@ -41,6 +42,9 @@ ImpactEvent event(double zeta, ImpactStatus status = ImpactStatus::ok) {
   e.status = status;
   return e;
 }
+
+// Feeds one event as the stream processor does: its zeta, trusted when its status is ok.
+AlarmState feed(TrendMonitor& m, const ImpactEvent& e) { return m.update(e.zeta, e.status == ImpactStatus::ok); }
 
 bool alarming(AlarmLevel level) { return level == AlarmLevel::alert || level == AlarmLevel::danger; }
 
@@ -97,18 +101,18 @@ TEST(TrendBaseline, LearningThenNormalWithMedianAndMad) {
   // -> MAD 0.03. The 0.5 outlier moves neither (that is why median/MAD and not mean/sd).
   const double dev[7] = {0.03, -0.01, 0.5, 0.0, -0.04, 0.02, -0.05};
   for (int i = 0; i < 6; ++i) {
-    const AlarmState s = m.update(event(kZeta0 * std::exp(dev[i])));
+    const AlarmState s = feed(m, event(kZeta0 * std::exp(dev[i])));
     EXPECT_EQ(s.level, AlarmLevel::learning) << i;
     EXPECT_FALSE(s.transition());
   }
-  const AlarmState s = m.update(event(kZeta0 * std::exp(dev[6])));
+  const AlarmState s = feed(m, event(kZeta0 * std::exp(dev[6])));
   EXPECT_EQ(s.level, AlarmLevel::normal);
   EXPECT_EQ(s.previous, AlarmLevel::learning);
   EXPECT_TRUE(s.transition());
   EXPECT_NEAR(s.baseline_ln_zeta, std::log(kZeta0), 1e-12);
   EXPECT_NEAR(s.baseline_ln_sd, 1.4826 * 0.03, 1e-12);
   // Next event: no transition any more.
-  const AlarmState s2 = m.update(event(kZeta0));
+  const AlarmState s2 = feed(m, event(kZeta0));
   EXPECT_EQ(s2.level, AlarmLevel::normal);
   EXPECT_FALSE(s2.transition());
 }
@@ -118,7 +122,7 @@ TEST(TrendBaseline, EvenCountMedianAveragesTheMiddlePair) {
   c.baseline_events = 6;
   TrendMonitor m(c);
   // ln zeta0 + {-0.2, -0.1, 0, 0.1, 0.3, 0.4}: median 0.05; |dev| {.25,.15,.05,.05,.25,.35} -> MAD (.15+.25)/2 = 0.2.
-  for (double d : {0.3, -0.1, 0.4, -0.2, 0.1, 0.0}) m.update(event(kZeta0 * std::exp(d)));
+  for (double d : {0.3, -0.1, 0.4, -0.2, 0.1, 0.0}) feed(m, event(kZeta0 * std::exp(d)));
   ASSERT_EQ(m.state().level, AlarmLevel::normal);
   EXPECT_NEAR(m.state().baseline_ln_zeta, std::log(kZeta0) + 0.05, 1e-12);
   EXPECT_NEAR(m.state().baseline_ln_sd, 1.4826 * 0.2, 1e-12);
@@ -129,12 +133,12 @@ TEST(TrendBaseline, LearnedSdIsFloored) {
   c.baseline_events = 5;
   c.min_baseline_ln_sd = 0.01;
   TrendMonitor m(c);
-  for (int i = 0; i < 5; ++i) m.update(event(kZeta0));  // identical estimates: MAD = 0
+  for (int i = 0; i < 5; ++i) feed(m, event(kZeta0));  // identical estimates: MAD = 0
   ASSERT_EQ(m.state().level, AlarmLevel::normal);
   EXPECT_EQ(m.state().baseline_ln_sd, 0.01);
   // With the sd floored at 1 %, a persistent 0.5 % rise of zeta (0.5 sd: below the CUSUM reference
   // k = 1 and an EWMA of 1.3 EWMA sd) does not alarm; with sd = MAD = 0 it would be infinitely many sd.
-  for (int i = 0; i < 200; ++i) EXPECT_EQ(m.update(event(kZeta0 * 1.005)).level, AlarmLevel::normal) << i;
+  for (int i = 0; i < 200; ++i) EXPECT_EQ(feed(m, event(kZeta0 * 1.005)).level, AlarmLevel::normal) << i;
 }
 
 TEST(TrendBaseline, ConfiguredBaselineSkipsLearning) {
@@ -145,7 +149,7 @@ TEST(TrendBaseline, ConfiguredBaselineSkipsLearning) {
   EXPECT_EQ(m.state().previous, AlarmLevel::normal);
   EXPECT_NEAR(m.state().baseline_ln_zeta, std::log(0.03), 1e-15);
   EXPECT_EQ(m.state().baseline_ln_sd, 0.05);  // the documented default spread
-  const AlarmState s = m.update(event(0.03));
+  const AlarmState s = feed(m, event(0.03));
   EXPECT_EQ(s.level, AlarmLevel::normal);
   EXPECT_FALSE(s.transition());
 
@@ -158,13 +162,13 @@ TEST(TrendBaseline, ResetRelearns) {
   TrendConfig c;
   c.baseline_events = 5;
   TrendMonitor m(c);
-  for (int i = 0; i < 5; ++i) m.update(event(kZeta0));
+  for (int i = 0; i < 5; ++i) feed(m, event(kZeta0));
   ASSERT_EQ(m.state().level, AlarmLevel::normal);
   m.reset();
   EXPECT_EQ(m.state().level, AlarmLevel::learning);
   EXPECT_TRUE(std::isnan(m.state().baseline_ln_zeta));
-  for (int i = 0; i < 4; ++i) EXPECT_EQ(m.update(event(0.05)).level, AlarmLevel::learning);
-  EXPECT_EQ(m.update(event(0.05)).level, AlarmLevel::normal);
+  for (int i = 0; i < 4; ++i) EXPECT_EQ(feed(m, event(0.05)).level, AlarmLevel::learning);
+  EXPECT_EQ(feed(m, event(0.05)).level, AlarmLevel::normal);
   EXPECT_NEAR(m.state().baseline_ln_zeta, std::log(0.05), 1e-12);
 }
 
@@ -176,23 +180,23 @@ TEST(TrendEvents, NonOkEventsDoNotMoveTheStatistics) {
   c.baseline_events = 5;
   TrendMonitor m(c);
   // While learning: bad events do not count towards the baseline.
-  for (int i = 0; i < 4; ++i) m.update(event(kZeta0));
+  for (int i = 0; i < 4; ++i) feed(m, event(kZeta0));
   for (auto st : {ImpactStatus::low_snr, ImpactStatus::ridge_lost, ImpactStatus::window_cut, ImpactStatus::clipped,
                   ImpactStatus::spike, ImpactStatus::too_short, ImpactStatus::not_decaying, ImpactStatus::fit_failed,
                   ImpactStatus::inconsistent}) {
-    EXPECT_EQ(m.update(event(10.0 * kZeta0, st)).level, AlarmLevel::learning);
+    EXPECT_EQ(feed(m, event(10.0 * kZeta0, st)).level, AlarmLevel::learning);
   }
-  EXPECT_EQ(m.update(event(NAN)).level, AlarmLevel::learning);   // ok but not finite
-  EXPECT_EQ(m.update(event(-0.01)).level, AlarmLevel::learning); // ok but not a damping ratio
-  EXPECT_EQ(m.update(event(0.0)).level, AlarmLevel::learning);
-  EXPECT_EQ(m.update(event(INFINITY)).level, AlarmLevel::learning);
-  EXPECT_EQ(m.update(event(kZeta0)).level, AlarmLevel::normal);
+  EXPECT_EQ(feed(m, event(NAN)).level, AlarmLevel::learning);   // ok but not finite
+  EXPECT_EQ(feed(m, event(-0.01)).level, AlarmLevel::learning); // ok but not a damping ratio
+  EXPECT_EQ(feed(m, event(0.0)).level, AlarmLevel::learning);
+  EXPECT_EQ(feed(m, event(INFINITY)).level, AlarmLevel::learning);
+  EXPECT_EQ(feed(m, event(kZeta0)).level, AlarmLevel::normal);
   EXPECT_NEAR(m.state().baseline_ln_zeta, std::log(kZeta0), 1e-15);
 
   // While monitoring: a long run of wildly high but non-ok estimates changes nothing at all.
-  const AlarmState before = m.update(event(kZeta0 * 1.01));
+  const AlarmState before = feed(m, event(kZeta0 * 1.01));
   for (int i = 0; i < 100; ++i) {
-    const AlarmState s = m.update(event(5.0 * kZeta0, ImpactStatus::inconsistent));
+    const AlarmState s = feed(m, event(5.0 * kZeta0, ImpactStatus::inconsistent));
     EXPECT_EQ(s.level, AlarmLevel::normal);
     EXPECT_EQ(s.previous, AlarmLevel::normal);
     EXPECT_EQ(s.ewma_ln_zeta, before.ewma_ln_zeta);
@@ -204,9 +208,9 @@ TEST(TrendEvents, NonOkEventsDoNotMoveTheStatistics) {
 TEST(TrendEvents, NonOkEventDuringAlarmKeepsLevelWithPreviousEqualToLevel) {
   TrendMonitor m(known_baseline());
   AlarmState s;
-  for (int i = 0; i < 10; ++i) s = m.update(event(zeta_at(4.0)));
+  for (int i = 0; i < 10; ++i) s = feed(m, event(zeta_at(4.0)));
   ASSERT_TRUE(alarming(s.level));
-  const AlarmState bad = m.update(event(kZeta0, ImpactStatus::low_snr));
+  const AlarmState bad = feed(m, event(kZeta0, ImpactStatus::low_snr));
   EXPECT_EQ(bad.level, s.level);
   EXPECT_EQ(bad.previous, s.level);
   EXPECT_FALSE(bad.transition());
@@ -217,7 +221,7 @@ TEST(TrendEvents, UpdateDoesNotAllocate) {
   TrendMonitor m(c);
   Gauss g(1);
   const long before = ridgewatch::test::allocations();
-  for (int i = 0; i < 2000; ++i) m.update(event(kZeta0 * std::exp(0.05 * g() + (i > 1000 ? 0.3 : 0.0))));
+  for (int i = 0; i < 2000; ++i) feed(m, event(kZeta0 * std::exp(0.05 * g() + (i > 1000 ? 0.3 : 0.0))));
   const long after = ridgewatch::test::allocations();
   EXPECT_EQ(after - before, 0);
   EXPECT_TRUE(alarming(m.state().level));  // the loop did reach the alarm code
@@ -231,7 +235,7 @@ TEST(TrendLevels, ConstantShiftGivesAlertThenDangerAndEwmaTracksTheShift) {
   TrendMonitor m(known_baseline());
   // x = 4 (at the clip): EWMA -> 4 baseline sd = 10.6 EWMA sd > danger 9.
   std::vector<AlarmLevel> levels;
-  for (int i = 0; i < 40; ++i) levels.push_back(m.update(event(zeta_at(4.0))).level);
+  for (int i = 0; i < 40; ++i) levels.push_back(feed(m, event(zeta_at(4.0))).level);
   EXPECT_EQ(levels.front(), AlarmLevel::normal);
   EXPECT_NE(std::find(levels.begin(), levels.end(), AlarmLevel::alert), levels.end());  // alert before danger
   EXPECT_EQ(levels.back(), AlarmLevel::danger);
@@ -245,7 +249,7 @@ TEST(TrendLevels, CusumAloneGivesAlertNeverDanger) {
   AlarmState s;
   int first_alert = -1;
   for (int i = 0; i < 500; ++i) {
-    s = m.update(event(zeta_at(1.5)));
+    s = feed(m, event(zeta_at(1.5)));
     if (first_alert < 0 && alarming(s.level)) first_alert = i;
     if (first_alert >= 0) {
       ASSERT_EQ(s.level, AlarmLevel::alert) << i;
@@ -268,7 +272,7 @@ TEST(TrendLevels, KOfNIsolatedOutliersDoNotAlarm) {
     int alarms = 0;
     for (int i = 0; i < 1000; ++i) {
       const bool outlier = i % 50 >= 20 && i % 50 < 23;
-      alarms += alarming(m.update(event(zeta_at(outlier ? 10.0 : 0.0))).level) ? 1 : 0;
+      alarms += alarming(feed(m, event(zeta_at(outlier ? 10.0 : 0.0))).level) ? 1 : 0;
     }
     return alarms;
   };
@@ -291,7 +295,7 @@ TEST(TrendLevels, KOfNNeedsKOfTheLastNEvents) {
     TrendMonitor m(c);
     int first = -1;
     for (int i = 0; i < 40 && first < 0; ++i) {
-      if (alarming(m.update(event(zeta_at(i % 2 == 0 ? 3.2 : 0.0))).level)) first = i;
+      if (alarming(feed(m, event(zeta_at(i % 2 == 0 ? 3.2 : 0.0))).level)) first = i;
     }
     return first;
   };
@@ -316,21 +320,21 @@ TEST(TrendLevels, HysteresisStopsChatteringAtTheLimit) {
     int count = 0;
     alarm_events = 0;
     // Ramp the EWMA up to the limit from below first.
-    for (int i = 0; i < 60; ++i) m.update(event(zeta_at(limit_x - 2.0 * d)));
+    for (int i = 0; i < 60; ++i) feed(m, event(zeta_at(limit_x - 2.0 * d)));
     double e_prev = m.state().ewma_ln_zeta - std::log(kZeta0);
     e_prev /= 0.05;
     for (int i = 0; i < 400; ++i) {
       const double e = limit_x + (i % 2 == 0 ? d : -d);
       const double x = (e - 0.75 * e_prev) / 0.25;
       e_prev = e;
-      const AlarmState s = m.update(event(zeta_at(x)));
+      const AlarmState s = feed(m, event(zeta_at(x)));
       count += s.transition() ? 1 : 0;
       alarm_events += alarming(s.level) ? 1 : 0;
     }
     // The statistic falls well below limit - hysteresis: the alert clears.
     AlarmState s;
     for (int i = 0; i < 60; ++i) {
-      s = m.update(event(zeta_at(0.0)));
+      s = feed(m, event(zeta_at(0.0)));
       count += s.transition() ? 1 : 0;
     }
     EXPECT_EQ(s.level, AlarmLevel::normal);
@@ -344,8 +348,8 @@ TEST(TrendLevels, HysteresisStopsChatteringAtTheLimit) {
 
 TEST(TrendLevels, LatchingHoldsUntilResetLatch) {
   auto excursion = [](TrendMonitor& m) {
-    for (int i = 0; i < 20; ++i) m.update(event(zeta_at(4.0)));
-    for (int i = 0; i < 100; ++i) m.update(event(zeta_at(0.0)));
+    for (int i = 0; i < 20; ++i) feed(m, event(zeta_at(4.0)));
+    for (int i = 0; i < 100; ++i) feed(m, event(zeta_at(0.0)));
   };
   {  // not latching: the level clears after the excursion
     TrendMonitor m(known_baseline());
@@ -363,21 +367,21 @@ TEST(TrendLevels, LatchingHoldsUntilResetLatch) {
   EXPECT_EQ(m.state().level, AlarmLevel::normal);
   EXPECT_EQ(m.state().previous, AlarmLevel::danger);  // the reset is a visible transition
   EXPECT_FALSE(m.state().latched);
-  EXPECT_EQ(m.update(event(kZeta0)).level, AlarmLevel::normal);
+  EXPECT_EQ(feed(m, event(kZeta0)).level, AlarmLevel::normal);
 
   // Reset while the statistics still alarm: the level follows them (and latches again).
-  for (int i = 0; i < 20; ++i) m.update(event(zeta_at(4.0)));
+  for (int i = 0; i < 20; ++i) feed(m, event(zeta_at(4.0)));
   ASSERT_EQ(m.state().level, AlarmLevel::danger);
   m.reset_latch();
   EXPECT_EQ(m.state().level, AlarmLevel::danger);
-  EXPECT_EQ(m.update(event(zeta_at(4.0))).level, AlarmLevel::danger);
+  EXPECT_EQ(feed(m, event(zeta_at(4.0))).level, AlarmLevel::danger);
   EXPECT_TRUE(m.state().latched);
 
   // A latched alert still escalates to danger.
   m.reset();
-  for (int i = 0; i < 40; ++i) m.update(event(zeta_at(1.5)));  // CUSUM alert only
+  for (int i = 0; i < 40; ++i) feed(m, event(zeta_at(1.5)));  // CUSUM alert only
   ASSERT_EQ(m.state().level, AlarmLevel::alert);
-  for (int i = 0; i < 20; ++i) m.update(event(zeta_at(4.0)));
+  for (int i = 0; i < 20; ++i) feed(m, event(zeta_at(4.0)));
   EXPECT_EQ(m.state().level, AlarmLevel::danger);
 }
 
@@ -389,7 +393,7 @@ TEST(TrendLevels, AlarmOnDecrease) {
     Gauss g(seed);
     for (int i = 0; i < 600; ++i) {
       const double zeta = kZeta0 * (i >= 300 ? 0.75 : 1.0) * std::exp(0.05 * g());
-      const AlarmState s = m.update(event(zeta));
+      const AlarmState s = feed(m, event(zeta));
       if (alarming(s.level)) return i - 300;  // negative: before the drop
     }
     return 1000;
@@ -406,7 +410,7 @@ TEST(TrendLevels, AlarmOnDecrease) {
   c.alarm_on_decrease = true;
   TrendMonitor m(c);
   AlarmState s;
-  for (int i = 0; i < 40; ++i) s = m.update(event(zeta_at(-1.5)));
+  for (int i = 0; i < 40; ++i) s = feed(m, event(zeta_at(-1.5)));
   EXPECT_EQ(s.cusum_up, 0.0);
   EXPECT_GT(s.cusum_down, 8.0);
   EXPECT_EQ(s.level, AlarmLevel::alert);
@@ -428,7 +432,7 @@ StepResult run_step(double ln_sd, std::uint64_t seed, int before = 300, int afte
   StepResult r;
   for (int i = 0; i < before + after; ++i) {
     const double step = i >= before ? 1.25 : 1.0;
-    const AlarmState s = m.update(event(kZeta0 * step * std::exp(ln_sd * g())));
+    const AlarmState s = feed(m, event(kZeta0 * step * std::exp(ln_sd * g())));
     if (!alarming(s.level)) continue;
     if (i < before) {
       r.early = true;
@@ -468,7 +472,7 @@ TEST(TrendAcceptance, SlowDriftAlarmsBeforeThirtyPercent) {
       double rise_at_alarm = -1.0;
       for (int i = 0; i < 15300; ++i) {
         const double rise = i < 300 ? 0.0 : 0.30 * (i - 300) / 15000.0;
-        const AlarmState s = m.update(event(kZeta0 * (1.0 + rise) * std::exp(ln_sd * g())));
+        const AlarmState s = feed(m, event(kZeta0 * (1.0 + rise) * std::exp(ln_sd * g())));
         if (alarming(s.level)) {
           ASSERT_GE(i, 300) << "alarm before the drift started, sd " << ln_sd << " seed " << seed;
           rise_at_alarm = rise;
@@ -493,7 +497,7 @@ TEST(TrendAcceptance, NoFalseAlarmOnLongStationarySequences) {
     TrendMonitor m(TrendConfig{});
     Gauss g(5000 + seed);
     for (int i = 0; i < 20000; ++i) {
-      const AlarmState s = m.update(event(kZeta0 * std::exp(0.05 * g())));
+      const AlarmState s = feed(m, event(kZeta0 * std::exp(0.05 * g())));
       events += s.level != AlarmLevel::learning ? 1 : 0;
       alarms += alarming(s.level) && !alarming(s.previous) ? 1 : 0;
     }
@@ -519,7 +523,7 @@ TEST(TrendAcceptance, LooseDefaultsWouldFalseAlarm) {
     TrendMonitor m(c);
     Gauss g(5000 + seed);
     for (int i = 0; i < 20000; ++i) {
-      const AlarmState s = m.update(event(kZeta0 * std::exp(0.05 * g())));
+      const AlarmState s = feed(m, event(kZeta0 * std::exp(0.05 * g())));
       alarms += alarming(s.level) && !alarming(s.previous) ? 1 : 0;
     }
   }
@@ -536,7 +540,7 @@ TEST(TrendAcceptance, DISABLED_MeasureArlAndDelays) {
     TrendMonitor m(TrendConfig{});
     Gauss g(seed * 7919 + 1);
     for (int i = 0; i < 200'000; ++i) {
-      const AlarmState s = m.update(event(kZeta0 * std::exp(0.05 * g())));
+      const AlarmState s = feed(m, event(kZeta0 * std::exp(0.05 * g())));
       events += s.level != AlarmLevel::learning ? 1 : 0;
       alarms += alarming(s.level) && !alarming(s.previous) ? 1 : 0;
     }

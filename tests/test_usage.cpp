@@ -1,4 +1,4 @@
-// One usage table (cli/usage.cpp) for every command: the flags each command's Args accepts are exactly
+// One usage table (app/usage.cpp) for every command: the flags each command's Args accepts are exactly
 // the table's (so a flag added to a command without a line in the table fails here, naming it), and
 // `--help`, the top-level help, the man pages and the bash completion list every one of them.
 #include <gtest/gtest.h>
@@ -10,13 +10,14 @@
 #include <set>
 #include <sstream>
 
-#include "cli/args.hpp"
+#include "app/args.hpp"
 #include "cli/commands.hpp"
-#include "cli/usage.hpp"
+#include "app/usage.hpp"
 #include "cli_runner.hpp"
 
 namespace cli = ridgewatch::cli;
-namespace usage = ridgewatch::cli::usage;
+namespace app = ridgewatch::app;
+namespace usage = ridgewatch::app::usage;
 using ridgewatch::test::run_cli;
 
 namespace {
@@ -30,15 +31,15 @@ const std::map<std::string, Runner> kRunners = {{"analyze", cli::run_analyze},
                                                 {"survey", cli::run_survey}};
 
 // The flags the command's Args accepts, as reported by its HelpRequested.
-cli::HelpRequested accepted_flags(const std::string& command) {
+app::HelpRequested accepted_flags(const std::string& command) {
   std::ostringstream out, err;
   try {
     kRunners.at(command)({"--help"}, out, err);
-  } catch (const cli::HelpRequested& h) {
+  } catch (const app::HelpRequested& h) {
     return h;
   }
   ADD_FAILURE() << command << " --help did not reach Args (no HelpRequested)";
-  return cli::HelpRequested({}, {});
+  return app::HelpRequested({}, {});
 }
 
 // A flag as roff writes it: every '-' as "\-".
@@ -56,7 +57,7 @@ std::set<std::string> table_set(const usage::Command& c, bool valued) {
 }  // namespace
 
 TEST(Usage, EveryCommandHasATableEntryAndViceVersa) {
-  for (const auto& [name, run] : kRunners) EXPECT_NE(usage::find(name), nullptr) << name << " missing in cli/usage.cpp";
+  for (const auto& [name, run] : kRunners) EXPECT_NE(usage::find(name), nullptr) << name << " missing in app/usage.cpp";
   for (const auto& c : usage::commands()) EXPECT_TRUE(kRunners.count(c.name)) << c.name << " has no runner here";
 }
 
@@ -66,14 +67,14 @@ TEST(Usage, ArgsFlagsEqualTheTableForEveryCommand) {
     const auto h = accepted_flags(c.name);
     for (const auto& f : h.valued)
       EXPECT_TRUE(table_set(c, true).count(f)) << c.name << ": Args accepts " << f
-                                                 << " (with a value) but cli/usage.cpp does not list it with a value";
+                                                 << " (with a value) but app/usage.cpp does not list it with a value";
     for (const auto& f : h.switches)
       EXPECT_TRUE(table_set(c, false).count(f)) << c.name << ": Args accepts switch " << f
-                                                  << " but cli/usage.cpp does not list it as a switch";
+                                                  << " but app/usage.cpp does not list it as a switch";
     for (const auto& f : table_set(c, true))
-      EXPECT_TRUE(h.valued.count(f)) << c.name << ": cli/usage.cpp lists " << f << " but Args does not take it with a value";
+      EXPECT_TRUE(h.valued.count(f)) << c.name << ": app/usage.cpp lists " << f << " but Args does not take it with a value";
     for (const auto& f : table_set(c, false))
-      EXPECT_TRUE(h.switches.count(f)) << c.name << ": cli/usage.cpp lists switch " << f << " but Args does not accept it";
+      EXPECT_TRUE(h.switches.count(f)) << c.name << ": app/usage.cpp lists switch " << f << " but Args does not accept it";
   }
 }
 
@@ -139,13 +140,13 @@ TEST(Usage, HelpOfEveryCommandExitsZero) {
 // Args itself: --help wins over every other argument, unless the command parses --help itself.
 TEST(Usage, ArgsReportsItsFlagsOnHelp) {
   try {
-    cli::Args({"--rate", "5", "--help", "--bogus"}, {"--rate"}, {"--json"});
+    app::Args({"--rate", "5", "--help", "--bogus"}, {"--rate"}, {"--json"});
     FAIL() << "no HelpRequested";
-  } catch (const cli::HelpRequested& h) {
+  } catch (const app::HelpRequested& h) {
     EXPECT_EQ(h.valued, (std::set<std::string>{"--rate"}));
     EXPECT_EQ(h.switches, (std::set<std::string>{"--json"}));
   }
-  const cli::Args own({"--help"}, {}, {"--help"});
+  const app::Args own({"--help"}, {}, {"--help"});
   EXPECT_TRUE(own.has("--help"));
 }
 

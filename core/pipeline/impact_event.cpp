@@ -18,14 +18,4 @@ std::string_view to_string(ImpactStatus status) {
   return "?";
 }
 
-std::string_view to_string(AlarmLevel level) {
-  switch (level) {
-    case AlarmLevel::learning: return "learning";
-    case AlarmLevel::normal: return "normal";
-    case AlarmLevel::alert: return "alert";
-    case AlarmLevel::danger: return "danger";
-  }
-  return "?";
-}
-
 }  // namespace ridgewatch::pipeline

@@ -6,6 +6,8 @@
 #include <cstdint>
 #include <string_view>
 
+#include "core/trend/alarm.hpp"
+
 namespace ridgewatch::pipeline {
 
 /// Why an impact's estimate is not trustworthy; `ok` when it is.
@@ -23,22 +25,6 @@ enum class ImpactStatus : std::uint8_t {
 };
 std::string_view to_string(ImpactStatus status);
 
-/// Trend alarm level after an event. `learning` while the baseline is being learned.
-enum class AlarmLevel : std::uint8_t { learning, normal, alert, danger };
-std::string_view to_string(AlarmLevel level);
-
-struct AlarmState {
-  AlarmLevel level = AlarmLevel::learning;
-  AlarmLevel previous = AlarmLevel::learning;  ///< level before this event (transition if different)
-  bool latched = false;                        ///< held at alert/danger until reset (latching mode)
-  double baseline_ln_zeta = NAN;               ///< learned or configured baseline of ln zeta
-  double baseline_ln_sd = NAN;                 ///< spread of ln zeta per event at baseline
-  double ewma_ln_zeta = NAN;                   ///< EWMA of ln zeta
-  double cusum_up = 0.0;                       ///< upper CUSUM of standardised ln zeta
-  double cusum_down = 0.0;                     ///< lower CUSUM (damping falling)
-  bool transition() const { return level != previous; }
-};
-
 struct ImpactEvent {
   std::uint64_t sample_index = 0;  ///< impact onset, samples from stream start
   double t_s = 0.0;                ///< sample_index / sample rate
@@ -55,7 +41,7 @@ struct ImpactEvent {
   /// the event log; the daemon's capture and latency use it.
   std::uint64_t window_end_index = 0;
   ImpactStatus status = ImpactStatus::ok;
-  AlarmState alarm;
+  trend::AlarmState alarm;  ///< the trend after this event
 };
 
 }  // namespace ridgewatch::pipeline

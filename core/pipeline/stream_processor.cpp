@@ -393,7 +393,7 @@ struct StreamProcessor::Impl {
     win.onset_index = o;
     ImpactEvent ev = analyzer_for(static_cast<std::size_t>(end - o)).analyze(win);
     ev.window_end_index = end;
-    ev.alarm = trend_monitor.update(ev);
+    ev.alarm = trend_monitor.update(ev.zeta, ev.status == ImpactStatus::ok);
     events.push_back(ev);
   }
 

@@ -12,10 +12,7 @@ namespace ridgewatch::trend {
 
 namespace {
 
-using pipeline::AlarmLevel;
-using pipeline::AlarmState;
-using pipeline::ImpactEvent;
-using pipeline::ImpactStatus;
+
 
 /// Consistency constant of the MAD for a normal distribution: sd = 1.4826 MAD (= 1 / Phi^-1(3/4)).
 constexpr double kMadToSd = 1.4826;
@@ -127,10 +124,10 @@ void TrendMonitor::reset_latch() {
   state_.level = statistics_level_;
 }
 
-AlarmState TrendMonitor::update(const ImpactEvent& event) {
+AlarmState TrendMonitor::update(double zeta, bool trusted) {
   state_.previous = state_.level;
-  if (event.status != ImpactStatus::ok || !std::isfinite(event.zeta) || !(event.zeta > 0.0)) return state_;
-  const double ln_zeta = std::log(event.zeta);
+  if (!trusted || !std::isfinite(zeta) || !(zeta > 0.0)) return state_;
+  const double ln_zeta = std::log(zeta);
   if (state_.level == AlarmLevel::learning)
     learn(ln_zeta);
   else

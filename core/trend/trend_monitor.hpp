@@ -61,7 +61,7 @@
 #include <cstddef>
 #include <cstdint>
 
-#include "core/pipeline/impact_event.hpp"
+#include "core/trend/alarm.hpp"
 
 namespace ridgewatch::trend {
 
@@ -96,15 +96,15 @@ class TrendMonitor {
  public:
   /// Validates the configuration (throws std::invalid_argument, see validate()).
   explicit TrendMonitor(const TrendConfig& config);
-  /// Feeds one event; only events with status ok and finite zeta move the statistics (others return
-  /// the current state unchanged, with previous = level). Returns the state after the event.
-  /// Does not allocate or throw.
-  pipeline::AlarmState update(const pipeline::ImpactEvent& event);
+  /// Feeds one event's damping ratio. Only a trusted estimate (the event's status is ok) with a finite
+  /// zeta > 0 moves the statistics; any other returns the current state unchanged, with
+  /// previous = level. Returns the state after the event. Does not allocate or throw.
+  AlarmState update(double zeta, bool trusted);
   /// Clears a latched alarm (the level then follows the statistics again).
   void reset_latch();
   /// Forgets everything (baseline relearned unless configured).
   void reset();
-  const pipeline::AlarmState& state() const { return state_; }
+  const AlarmState& state() const { return state_; }
 
  private:
   void start_monitoring(double baseline_ln_zeta, double baseline_ln_sd);
@@ -112,7 +112,7 @@ class TrendMonitor {
   void monitor(double ln_zeta);
 
   TrendConfig config_;
-  pipeline::AlarmState state_;
+  AlarmState state_;
   double baseline_buf_[kMaxBaselineEvents] = {};  // ln zeta of the good events seen while learning
   double scratch_buf_[kMaxBaselineEvents] = {};   // absolute deviations for the MAD
   std::size_t baseline_count_ = 0;
@@ -120,7 +120,7 @@ class TrendMonitor {
   double ewma_x_ = 0.0;           // EWMA of the clipped standardised ln zeta
   std::uint64_t window_mask_ = 0; // low confirm_n bits set
   std::uint64_t over_alert_bits_ = 0, over_danger_bits_ = 0;  // last n events beyond the limits
-  pipeline::AlarmLevel statistics_level_ = pipeline::AlarmLevel::learning;  // level without latching
+  AlarmLevel statistics_level_ = AlarmLevel::learning;  // level without latching
 };
 
 }  // namespace ridgewatch::trend

@@ -10,9 +10,9 @@
 #include <sstream>
 #include <string>
 
-#include "cli/args.hpp"
+#include "app/args.hpp"
 
-namespace ridgewatch::cli {
+namespace ridgewatch::app {
 
 class YamlReader {
  public:
@@ -141,4 +141,4 @@ class YamlReader {
   std::string name_;
 };
 
-}  // namespace ridgewatch::cli
+}  // namespace ridgewatch::app

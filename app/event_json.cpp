@@ -1,11 +1,11 @@
-#include "cli/event_json.hpp"
+#include "app/event_json.hpp"
 
 #include <charconv>
 #include <cmath>
 #include <nlohmann/json.hpp>
 #include <system_error>
 
-namespace ridgewatch::cli {
+namespace ridgewatch::app {
 
 namespace {
 
@@ -116,7 +116,7 @@ void append_event_json(std::string& out, const pipeline::ImpactEvent& e, std::st
   put_string(out, pipeline::to_string(e.status));
   out += ',';
   put_key(out, "alarm");
-  put_string(out, pipeline::to_string(e.alarm.level));
+  put_string(out, trend::to_string(e.alarm.level));
   out += ',';
   put_key(out, "alarm_detail");
   out += '{';
@@ -131,4 +131,4 @@ void append_event_json(std::string& out, const pipeline::ImpactEvent& e, std::st
   out += "}}";
 }
 
-}  // namespace ridgewatch::cli
+}  // namespace ridgewatch::app

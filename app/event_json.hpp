@@ -12,7 +12,7 @@
 
 #include "core/pipeline/impact_event.hpp"
 
-namespace ridgewatch::cli {
+namespace ridgewatch::app {
 
 /// wall_time_iso8601: wall-clock time of the impact (live capture), omitted when empty.
 std::string event_json(const pipeline::ImpactEvent& e, std::string_view source,
@@ -21,4 +21,4 @@ std::string event_json(const pipeline::ImpactEvent& e, std::string_view source,
 void append_event_json(std::string& out, const pipeline::ImpactEvent& e, std::string_view source,
                        std::string_view wall_time_iso8601 = {}, std::string_view stream = {});
 
-}  // namespace ridgewatch::cli
+}  // namespace ridgewatch::app

@@ -1,10 +1,10 @@
-#include "cli/args.hpp"
+#include "app/args.hpp"
 
 #include <charconv>
 #include <cmath>
 #include <system_error>
 
-namespace ridgewatch::cli {
+namespace ridgewatch::app {
 
 Args::Args(const std::vector<std::string>& argv, std::set<std::string> valued,
            std::set<std::string> switches)
@@ -86,4 +86,4 @@ long long Args::integer(const std::string& flag, long long fallback, long long l
   return x;
 }
 
-}  // namespace ridgewatch::cli
+}  // namespace ridgewatch::app

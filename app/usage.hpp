@@ -8,9 +8,9 @@
 #include <string>
 #include <vector>
 
-#include "cli/args.hpp"
+#include "app/args.hpp"
 
-namespace ridgewatch::cli::usage {
+namespace ridgewatch::app::usage {
 
 struct Flag {
   std::string name;     ///< "--fmin"
@@ -55,4 +55,4 @@ std::string man_config(const std::string& version, const std::string& config_yam
 /// bash completion script for ridgewatch and ridgewatchd.
 std::string bash_completion();
 
-}  // namespace ridgewatch::cli::usage
+}  // namespace ridgewatch::app::usage

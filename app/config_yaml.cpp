@@ -1,4 +1,4 @@
-#include "cli/config_yaml.hpp"
+#include "app/config_yaml.hpp"
 
 #include <cmath>
 #include <filesystem>
@@ -8,10 +8,10 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "cli/rig_defaults.hpp"
-#include "cli/yaml_reader.hpp"
+#include "app/rig_defaults.hpp"
+#include "app/yaml_reader.hpp"
 
-namespace ridgewatch::cli {
+namespace ridgewatch::app {
 
 namespace {
 
@@ -489,4 +489,4 @@ std::string to_yaml(const RidgewatchConfig& config) {
   return p.str();
 }
 
-}  // namespace ridgewatch::cli
+}  // namespace ridgewatch::app

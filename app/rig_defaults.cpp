@@ -1,14 +1,14 @@
-#include "cli/rig_defaults.hpp"
+#include "app/rig_defaults.hpp"
 
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
 
-#include "cli/args.hpp"
-#include "cli/rig_yaml.hpp"
+#include "app/args.hpp"
+#include "app/rig_yaml.hpp"
 
-namespace ridgewatch::cli {
+namespace ridgewatch::app {
 
 namespace {
 constexpr double kHalfWidthRel = 0.15;     // the shipped default band, 854 Hz +- 15 %
@@ -90,4 +90,4 @@ std::string ModelGap::text() const {
          (gap >= 0 ? "+" : "") + fixed(gap, 2) + " %";
 }
 
-}  // namespace ridgewatch::cli
+}  // namespace ridgewatch::app

@@ -14,10 +14,10 @@
 
 #include <string>
 
-#include "cli/config_yaml.hpp"
+#include "app/config_yaml.hpp"
 #include "core/model/rig_parameters.hpp"
 
-namespace ridgewatch::cli {
+namespace ridgewatch::app {
 
 struct RigBand {
   double f_d_hz = 0;      ///< model damped natural frequency, Hz
@@ -56,4 +56,4 @@ class ModelGap {
   std::size_t n_ = 0;
 };
 
-}  // namespace ridgewatch::cli
+}  // namespace ridgewatch::app

@@ -1,4 +1,4 @@
-#include "cli/rig_yaml.hpp"
+#include "app/rig_yaml.hpp"
 
 #include <yaml-cpp/yaml.h>
 
@@ -9,12 +9,12 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "cli/args.hpp"
-#include "cli/yaml_reader.hpp"
+#include "app/args.hpp"
+#include "app/yaml_reader.hpp"
 #include "core/model/custom_effect.hpp"
 #include "core/model/effect_registry.hpp"
 
-namespace ridgewatch::cli {
+namespace ridgewatch::app {
 
 namespace {
 
@@ -239,4 +239,4 @@ RigConfig load_rig_yaml(const std::string& path) {
   return parse_rig_yaml(text.str(), path);
 }
 
-}  // namespace ridgewatch::cli
+}  // namespace ridgewatch::app

@@ -11,7 +11,7 @@
 #include "core/model/effect_registry.hpp"
 #include "core/model/rig_parameters.hpp"
 
-namespace ridgewatch::cli {
+namespace ridgewatch::app {
 
 struct RigConfig {
   model::RigParameters rig;
@@ -27,4 +27,4 @@ RigConfig load_rig_yaml(const std::string& path);
 /// Same, from text; `name` is used in messages in place of the file name.
 RigConfig parse_rig_yaml(const std::string& text, const std::string& name);
 
-}  // namespace ridgewatch::cli
+}  // namespace ridgewatch::app

@@ -13,7 +13,7 @@
 
 #include "core/pipeline/stream_processor.hpp"
 
-namespace ridgewatch::cli {
+namespace ridgewatch::app {
 
 struct ReplaySourceConfig {
   std::string path;            ///< file to replay (required when source.type is replay)
@@ -112,7 +112,7 @@ struct LoggingConfig {
   double status_interval_s = 10.0;  ///< systemd STATUS= and log status line period
 };
 
-/// What the rig file (key `rig`) supplied, filled by apply_rig_defaults (cli/rig_defaults.hpp).
+/// What the rig file (key `rig`) supplied, filled by apply_rig_defaults (app/rig_defaults.hpp).
 struct RigModelInfo {
   std::string path;            ///< rig file as resolved; empty: no rig
   double f_d_hz = 0;           ///< model damped natural frequency, Hz
@@ -162,4 +162,4 @@ RidgewatchConfig parse_config(const std::string& text, const std::string& name);
 /// The configuration as YAML in the file's layout (for --print-defaults and logs).
 std::string to_yaml(const RidgewatchConfig& config);
 
-}  // namespace ridgewatch::cli
+}  // namespace ridgewatch::app

@@ -10,7 +10,7 @@
 #include <utility>
 #include <vector>
 
-namespace ridgewatch::cli {
+namespace ridgewatch::app {
 
 inline constexpr int kExitOk = 0;
 inline constexpr int kExitUsage = 2;     ///< bad usage or configuration; the message names the flag/key
@@ -22,7 +22,7 @@ class UsageError : public std::runtime_error {
 };
 
 /// Thrown by Args when "--help" is among the arguments (and the command does not parse --help
-/// itself): main() prints the command's help from cli/usage.cpp and exits 0. Carries the flags the
+/// itself): main() prints the command's help from app/usage.cpp and exits 0. Carries the flags the
 /// command's Args accepts, so tests can compare them with the usage table.
 class HelpRequested : public std::exception {
  public:
@@ -55,4 +55,4 @@ class Args {
   std::vector<std::string> positional_;
 };
 
-}  // namespace ridgewatch::cli
+}  // namespace ridgewatch::app
