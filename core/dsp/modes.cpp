@@ -21,20 +21,20 @@ namespace ridgewatch::dsp {
 namespace {
 
 constexpr double kTwoPi = 2.0 * std::numbers::pi;
-/// Detection resolutions: eta0 = 7 (the paper's, good time resolution), 20 and 50 (relative frequency
-/// resolutions 1/eta0 of 5 % and 2 %, which separate modes 15 % and 6 % apart).
-/// Detection resolutions eta0 = 7 (the paper's) up to 1000 (relative filter sd 14 % .. 0.1 %). The
-/// time-mean of |W|^2 of a row is, by Parseval, the periodogram weighted by the filter's power response,
-/// so the spectra come from one FFT; a CWT (eta0 = 7, 8 voices per octave) is needed only for the noise
-/// floor (each row's |W|^2 in time). A resolution is used only where its filter's standard deviation
-/// f / eta0 spans at least 1.5 periodogram resolutions 1 / T.
+// Detection resolutions eta0 = 7 (the paper's) up to 1000 (relative filter sd 14 % .. 0.1 %). The
+// time-mean of |W|^2 of a row is, by Parseval, the periodogram weighted by the filter's power response,
+// so the spectra come from one FFT; a CWT (eta0 = 7, 8 voices per octave) is needed only for the noise
+// floor (each row's |W|^2 in time). A resolution is used only where its filter's standard deviation
+// f / eta0 spans at least 1.5 periodogram resolutions 1 / T.
 constexpr double kFloorEta0 = 7.0;
 constexpr std::size_t kFloorVoices = 8;
 constexpr double kDetectFineEta0[] = {7.0, 20.0, 50.0, 150.0, 250.0, 400.0, 650.0, 1000.0};
-constexpr double kMaxEta0 = 1000.0;
+constexpr double kMaxEta0 = 1000.0;  // the estimation's limit (MorletCwtConfig::fine_resolution)
+// A backbone whose precise points scatter more than this (relative sd) with no amplitude law
+// explaining it marks the mode not ok (check_backbone_variation).
 constexpr double kMaxUnexplainedScatter = 0.25;
-constexpr std::size_t kMaxJointModes = 8;  // above: the maximum-likelihood fit runs in groups of neighbours
-constexpr std::size_t kMaxHiddenModes = 4;  // modes the residual rescan may add  // the estimation's limit (MorletCwtConfig::fine_resolution)
+constexpr std::size_t kMaxJointModes = 8;   // above: the maximum-likelihood fit runs in groups of neighbours
+constexpr std::size_t kMaxHiddenModes = 4;  // modes the residual rescan may add
 
 struct Peak {
   double f_hz = 0.0;
