@@ -21,20 +21,20 @@ namespace ridgewatch::dsp {
 namespace {
 
 constexpr double kTwoPi = 2.0 * std::numbers::pi;
-/// Detection resolutions: eta0 = 7 (the paper's, good time resolution), 20 and 50 (relative frequency
-/// resolutions 1/eta0 of 5 % and 2 %, which separate modes 15 % and 6 % apart).
-/// Detection resolutions eta0 = 7 (the paper's) up to 1000 (relative filter sd 14 % .. 0.1 %). The
-/// time-mean of |W|^2 of a row is, by Parseval, the periodogram weighted by the filter's power response,
-/// so the spectra come from one FFT; a CWT (eta0 = 7, 8 voices per octave) is needed only for the noise
-/// floor (each row's |W|^2 in time). A resolution is used only where its filter's standard deviation
-/// f / eta0 spans at least 1.5 periodogram resolutions 1 / T.
+// Detection resolutions eta0 = 7 (the paper's) up to 1000 (relative filter sd 14 % .. 0.1 %). The
+// time-mean of |W|^2 of a row is, by Parseval, the periodogram weighted by the filter's power response,
+// so the spectra come from one FFT; a CWT (eta0 = 7, 8 voices per octave) is needed only for the noise
+// floor (each row's |W|^2 in time). A resolution is used only where its filter's standard deviation
+// f / eta0 spans at least 1.5 periodogram resolutions 1 / T.
 constexpr double kFloorEta0 = 7.0;
 constexpr std::size_t kFloorVoices = 8;
 constexpr double kDetectFineEta0[] = {7.0, 20.0, 50.0, 150.0, 250.0, 400.0, 650.0, 1000.0};
-constexpr double kMaxEta0 = 1000.0;
+constexpr double kMaxEta0 = 1000.0;  // the estimation's limit (MorletCwtConfig::fine_resolution)
+// A backbone whose precise points scatter more than this (relative sd) with no amplitude law
+// explaining it marks the mode not ok (check_backbone_variation).
 constexpr double kMaxUnexplainedScatter = 0.25;
-constexpr std::size_t kMaxJointModes = 8;  // above: the maximum-likelihood fit runs in groups of neighbours
-constexpr std::size_t kMaxHiddenModes = 4;  // modes the residual rescan may add  // the estimation's limit (MorletCwtConfig::fine_resolution)
+constexpr std::size_t kMaxJointModes = 8;   // above: the maximum-likelihood fit runs in groups of neighbours
+constexpr std::size_t kMaxHiddenModes = 4;  // modes the residual rescan may add
 
 struct Peak {
   double f_hz = 0.0;
@@ -369,32 +369,51 @@ std::vector<std::complex<double>> mode_amplitudes(std::span<const double> x, dou
   return c;
 }
 
-}  // namespace
 
-ModeSearchResult identify_modes(std::span<const double> signal_in, double fs, const ModeSearchOptions& opt) {
+// ---- The steps of identify_modes, in the order it runs them.
+
+// The analysed part of the record and the quantities every step reads.
+struct Record {
+  std::span<const double> signal;  // the analysed part: the record up to end_s
+  double fs = 0.0;                 // sample rate, Hz
+  std::size_t n = 0;               // samples in signal
+  std::size_t n0 = 0;              // the onset's sample
+  double duration_s = 0.0;         // n / fs
+  double after_s = 0.0;            // (n - n0) / fs: the free response's length
+  double f_auto_min_hz = 0.0;      // the usable band [f_auto_min_hz, f_auto_max_hz]
+  double f_auto_max_hz = 0.0;
+};
+
+void check_options(std::span<const double> signal_in, double fs, const ModeSearchOptions& opt) {
   if (signal_in.size() < 64) throw std::invalid_argument("signal too short for mode identification (" + std::to_string(signal_in.size()) + " samples, need >= 64)");
   if (!(fs > 0) || !std::isfinite(fs)) throw std::invalid_argument("sample rate must be > 0");
   if (opt.max_modes < 1) throw std::invalid_argument("max_modes must be >= 1");
   if (opt.voices_per_octave < 4 || opt.voices_per_octave > 256)
     throw std::invalid_argument("voices_per_octave must be in [4, 256]");
   if (opt.eta0 > 0 && !(opt.eta0 >= 5.0 && opt.eta0 <= kMaxEta0)) throw std::invalid_argument("eta0 must be in [5, 1000]");
-  ModeSearchResult result;
-  // Analysed part: up to end_s.
+}
+
+// The analysed part (up to end_s), the band and the onset; sets result's end_s, f_min_hz, f_max_hz and
+// onset_s. Throws std::invalid_argument when they leave too little to analyse or an empty band.
+Record analysed_part(std::span<const double> signal_in, double fs, const ModeSearchOptions& opt, ModeSearchResult& result) {
+  Record rec;
+  rec.fs = fs;
   std::size_t n = signal_in.size();
   if (opt.end_s > 0) {
     const auto n_end = static_cast<std::size_t>(std::llround(opt.end_s * fs));
     if (n_end < 64) throw std::invalid_argument("end leaves fewer than 64 samples to analyse");
     n = std::min(n, n_end);
   }
-  const std::span<const double> signal = signal_in.subspan(0, n);
+  rec.n = n;
+  rec.signal = signal_in.subspan(0, n);
   result.end_s = static_cast<double>(n) / fs;
-  const double duration_s = static_cast<double>(n) / fs;
+  rec.duration_s = static_cast<double>(n) / fs;
 
   // Lowest useful frequency: the eta0 = 7 kernel must fit 16 times in the record.
-  const double f_auto_min = std::max(20.0, 16.0 * 7.0 / (kTwoPi * duration_s));
-  const double f_auto_max = 0.45 * fs;
-  result.f_min_hz = opt.f_min_hz > 0 ? opt.f_min_hz : f_auto_min;
-  result.f_max_hz = opt.f_max_hz > 0 ? opt.f_max_hz : f_auto_max;
+  rec.f_auto_min_hz = std::max(20.0, 16.0 * 7.0 / (kTwoPi * rec.duration_s));
+  rec.f_auto_max_hz = 0.45 * fs;
+  result.f_min_hz = opt.f_min_hz > 0 ? opt.f_min_hz : rec.f_auto_min_hz;
+  result.f_max_hz = opt.f_max_hz > 0 ? opt.f_max_hz : rec.f_auto_max_hz;
   if (!(result.f_max_hz < fs / 2))
     throw std::invalid_argument("f_max " + std::to_string(result.f_max_hz) + " Hz must be below half the sample rate (" + std::to_string(fs / 2) + " Hz)");
   if (!(result.f_min_hz < result.f_max_hz))
@@ -405,31 +424,43 @@ ModeSearchResult identify_modes(std::span<const double> signal_in, double fs, co
     result.onset_s = opt.onset_s;
   } else {
     double peak = 0.0;
-    for (double v : signal) peak = std::max(peak, std::abs(v));
+    for (double v : rec.signal) peak = std::max(peak, std::abs(v));
     std::size_t i = 0;
-    while (i < n && std::abs(signal[i]) < 0.5 * peak) ++i;
+    while (i < n && std::abs(rec.signal[i]) < 0.5 * peak) ++i;
     result.onset_s = static_cast<double>(std::min(i, n - 1)) / fs;
   }
-  const auto n0 = static_cast<std::size_t>(std::llround(result.onset_s * fs));
-  if (n0 + 32 >= n) throw std::invalid_argument("onset leaves fewer than 32 samples to analyse");
-  const double after_s = static_cast<double>(n - n0) / fs;
+  rec.n0 = static_cast<std::size_t>(std::llround(result.onset_s * fs));
+  if (rec.n0 + 32 >= n) throw std::invalid_argument("onset leaves fewer than 32 samples to analyse");
+  rec.after_s = static_cast<double>(n - rec.n0) / fs;
+  return rec;
+}
 
-  // 1. Detection over the whole usable band (and the user's, if wider), at every resolution.
-  const double det_lo = std::min(result.f_min_hz, f_auto_min);
-  const double det_hi = std::max(result.f_max_hz, f_auto_max);
+// Step 1's result: the noise floor's scan and every detected peak (sorted by frequency).
+struct Detection {
+  LevelScan base;           // the eta0 = 7 CWT scan: the noise floor at every frequency
+  std::vector<Peak> peaks;  // every peak, also outside the band
+  double min_ratio = 0.0;   // min_peak_snr_db as a power ratio
+};
+
+// 1. Detection over the whole usable band (and the user's, if wider), at every resolution; sets
+// result's peaks and noise_sd.
+Detection detect_peaks(const Record& rec, const ModeSearchOptions& opt, ModeSearchResult& result) {
+  Detection det;
+  const double det_lo = std::min(result.f_min_hz, rec.f_auto_min_hz);
+  const double det_hi = std::max(result.f_max_hz, rec.f_auto_max_hz);
   std::vector<LevelScan> levels;
-  const double min_ratio = std::pow(10.0, opt.min_peak_snr_db / 10.0);
-  const LevelScan base = scan_level(signal, fs, kFloorEta0, det_lo, det_hi, kFloorVoices, opt.envelope.edge_widths);
+  det.min_ratio = std::pow(10.0, opt.min_peak_snr_db / 10.0);
+  det.base = scan_level(rec.signal, rec.fs, kFloorEta0, det_lo, det_hi, kFloorVoices, opt.envelope.edge_widths);
   {
     double df = 0.0;
-    const std::vector<double> pg = periodogram(signal, fs, df);
+    const std::vector<double> pg = periodogram(rec.signal, rec.fs, df);
     for (double eta0 : kDetectFineEta0)
-      levels.push_back(smoothed_level(pg, df, eta0, det_lo, det_hi, duration_s, base, opt.voices_per_octave));
+      levels.push_back(smoothed_level(pg, df, eta0, det_lo, det_hi, rec.duration_s, det.base, opt.voices_per_octave));
   }
-  std::vector<Peak> peaks;
+  std::vector<Peak>& peaks = det.peaks;
   for (auto it = levels.rbegin(); it != levels.rend(); ++it) {  // finest first
     std::vector<Peak> found;
-    find_peaks(*it, min_ratio, found);
+    find_peaks(*it, det.min_ratio, found);
     for (const Peak& p : found) {
       // The same mode as a peak a finer resolution found within 2 of this filter's standard deviations.
       bool dup = false;
@@ -440,45 +471,132 @@ ModeSearchResult identify_modes(std::span<const double> signal_in, double fs, co
   std::sort(peaks.begin(), peaks.end(), [](const Peak& a, const Peak& b) { return a.f_hz < b.f_hz; });
   for (const Peak& p : peaks) result.peaks.push_back({p.f_hz, 10.0 * std::log10(p.level), p.eta0});
   // Noise: the floor over the band, as the standard deviation of white noise with that density.
-  {
-    std::vector<double> fl;
-    for (std::size_t r = 0; r < base.freqs.size(); ++r)
-      if (base.freqs[r] >= result.f_min_hz && base.freqs[r] <= result.f_max_hz) fl.push_back(base.floor[r]);
-    if (fl.empty()) fl.push_back(floor_at(base, std::sqrt(result.f_min_hz * result.f_max_hz)));
-    result.noise_sd = std::sqrt(std::max(0.0, quantile(fl, 0.5)));
-  }
+  std::vector<double> fl;
+  for (std::size_t r = 0; r < det.base.freqs.size(); ++r)
+    if (det.base.freqs[r] >= result.f_min_hz && det.base.freqs[r] <= result.f_max_hz) fl.push_back(det.base.floor[r]);
+  if (fl.empty()) fl.push_back(floor_at(det.base, std::sqrt(result.f_min_hz * result.f_max_hz)));
+  result.noise_sd = std::sqrt(std::max(0.0, quantile(fl, 0.5)));
+  return det;
+}
 
-  // In-band peaks, the strongest max_modes of them.
+// In-band peaks, the strongest max_modes of them, sorted by frequency.
+std::vector<Peak> strongest_in_band(const std::vector<Peak>& peaks, const ModeSearchResult& result, std::size_t max_modes) {
   std::vector<Peak> cand;
   for (const Peak& p : peaks)
     if (p.f_hz >= result.f_min_hz && p.f_hz <= result.f_max_hz) cand.push_back(p);
   std::sort(cand.begin(), cand.end(), [](const Peak& a, const Peak& b) { return a.level > b.level; });
-  if (cand.size() > opt.max_modes) cand.resize(opt.max_modes);
+  if (cand.size() > max_modes) cand.resize(max_modes);
   std::sort(cand.begin(), cand.end(), [](const Peak& a, const Peak& b) { return a.f_hz < b.f_hz; });
+  return cand;
+}
 
-  EnvelopeOptions env = opt.envelope;
-  env.onset_s = result.onset_s;
-  struct Work {
-    IdentifiedMode mode;
-    Peak peak;
-    EnvelopeResult envr;
-    std::vector<std::size_t> unresolved;  // indices into cand of neighbours closer than eta0 separates
-    bool user_eta0_failed = false;        // the user's eta0 gave no envelope estimate (read at the automatic one)
-  };  std::vector<std::pair<double, double>> fitted;  // (f, zeta) of the last joint fit, for the residual
-  std::vector<Peak> dropped;  // in-band peaks left out of the last analysis (no envelope estimate)
-  auto analyse = [&](const std::vector<Peak>& cands) {
-  std::vector<Work> work;
-  fitted.clear();
-  dropped.clear();
+// One candidate mode through steps 2-4.
+struct Work {
+  IdentifiedMode mode;
+  Peak peak;
+  EnvelopeResult envr;
+  std::vector<std::size_t> unresolved;  // indices into the analysed modes of neighbours closer than eta0 separates
+  bool user_eta0_failed = false;        // the user's eta0 gave no envelope estimate (read at the automatic one)
+};
 
-  for (const Peak& pk : cands) {
-    Work wk;
+// x[t] for t in [n0, n) minus the damped mode C z^(t - n0), z = exp((-sigma + i omega) / fs).
+void subtract_mode(std::vector<double>& x, std::size_t n0, std::size_t n, double fs, std::complex<double> c,
+                   const std::pair<double, double>& f_zeta) {
+  const double om = kTwoPi * f_zeta.first, sg = decay_from_zeta(f_zeta.second, om);
+  const std::complex<double> z = std::exp(std::complex<double>(-sg, om) / fs);
+  std::complex<double> zn = c;
+  for (std::size_t t = n0; t < n; ++t) {
+    x[t] -= zn.real();
+    zn *= z;
+  }
+}
+
+// Joint maximum-likelihood fit of all guesses (ml_fit.hpp), in groups of neighbours when there are
+// many. A group whose fit throws keeps the default estimates (status fit_failed).
+MlFitResult fit_joint(SpectralModeFitter& fitter, std::span<const double> seg, const std::vector<ModeGuess>& guesses,
+                      const MlFitOptions& ml_opt) {
+  MlFitResult ml;
+  ml.modes.assign(guesses.size(), DampingEstimate{});
+  for (auto& e : ml.modes) e.method = DampingMethod::ml;
+  if (guesses.size() <= kMaxJointModes) {
+    try {
+      ml = fitter.fit(seg, guesses, ml_opt);
+    } catch (const std::exception&) {
+    }
+    return ml;
+  }
+  // Many modes (real structures): the joint fit's cost grows with the cube of the parameters, so
+  // modes are fitted in groups of neighbours (consecutive modes less than 15 % apart), each over
+  // its own band (10 half-power bandwidths or 5 % beyond its outer modes); the residual terms take
+  // the tails of the other groups.
+  std::size_t g0 = 0;
+  while (g0 < guesses.size()) {
+    std::size_t g1 = g0 + 1;
+    while (g1 < guesses.size() && guesses[g1].f_hz < 1.15 * guesses[g1 - 1].f_hz && g1 - g0 < kMaxJointModes) ++g1;
+    MlFitOptions grp = ml_opt;
+    const ModeGuess& lo = guesses[g0];
+    const ModeGuess& hi = guesses[g1 - 1];
+    grp.f_lo_hz = std::max(ml_opt.f_lo_hz, lo.f_hz * (1.0 - std::max(0.05, 10.0 * lo.zeta)));
+    grp.f_hi_hz = std::min(ml_opt.f_hi_hz, hi.f_hz * (1.0 + std::max(0.05, 10.0 * hi.zeta)));
+    try {
+      const MlFitResult part = fitter.fit(seg, std::span<const ModeGuess>(guesses).subspan(g0, g1 - g0), grp);
+      for (std::size_t i = g0; i < g1; ++i) ml.modes[i] = part.modes[i - g0];
+    } catch (const std::exception&) {
+    }
+    g0 = g1;
+  }
+  return ml;
+}
+
+// Steps 2-4 for a list of candidate peaks; run again when the residual rescan adds hidden modes.
+class ModeAnalysis {
+ public:
+  ModeAnalysis(const Record& rec, const ModeSearchOptions& opt, const ModeSearchResult& result, const Detection& det)
+      : rec_(rec), opt_(opt), result_(result), det_(det), env_(opt.envelope) {
+    env_.onset_s = result.onset_s;
+  }
+
+  // The modes among cands that decay like a free response, with their envelope and ml estimates.
+  std::vector<Work> run(const std::vector<Peak>& cands) {
+    std::vector<Work> work;
+    fitted_.clear();
+    dropped_.clear();
+    for (const Peak& pk : cands) {
+      Work wk;
+      if (read_candidate(pk, wk)) work.push_back(std::move(wk));
+      else dropped_.push_back(pk);
+    }
+    mark_unresolved(work);
+    if (!work.empty()) {
+      const std::span<const double> seg = refine_ml(work);
+      read_deflated(work, seg);
+    }
+    for (const Work& wk : work)
+      if (std::isfinite(wk.mode.ml.f_hz) && wk.mode.ml.zeta > 0 && wk.mode.ml.zeta < 1) fitted_.emplace_back(wk.mode.ml.f_hz, wk.mode.ml.zeta);
+    return work;
+  }
+
+  /// (f, zeta) of the last run's ml fits that are valid modes: the residual rescan subtracts them.
+  const std::vector<std::pair<double, double>>& fitted() const { return fitted_; }
+  /// In-band peaks the last run left out (no envelope estimate).
+  const std::vector<Peak>& dropped() const { return dropped_; }
+
+ private:
+  // eta0 of an automatic choice: large enough to separate the mode from its neighbours (needed), at
+  // least 7, and small enough that the kernel fits the free response 16 times.
+  double automatic_eta0(double f_hz, double needed) const {
+    const double eta0_record = kTwoPi * f_hz * rec_.after_s / 16.0;
+    return std::clamp(std::max(7.0, needed), 5.0, std::max(5.0, std::min(kMaxEta0, eta0_record)));
+  }
+
+  // 2. eta0 from the neighbours (resolution) and the decay (time), then the envelope estimates (3).
+  // False when the peak gives no decay estimate (not a free-response mode).
+  bool read_candidate(const Peak& pk, Work& wk) const {
     wk.peak = pk;
     IdentifiedMode& mode = wk.mode;
     mode.detection_snr_db = 10.0 * std::log10(pk.level);
-    // 2. eta0 from the neighbours (resolution) and the decay (time).
     double needed = 0.0;
-    for (const Peak& q : peaks) {
+    for (const Peak& q : det_.peaks) {
       if (q.f_hz == pk.f_hz) continue;
       const double df = std::abs(q.f_hz - pk.f_hz);
       if (!std::isfinite(mode.neighbour_hz) || df < std::abs(mode.neighbour_hz - pk.f_hz)) mode.neighbour_hz = q.f_hz;
@@ -487,20 +605,20 @@ ModeSearchResult identify_modes(std::span<const double> signal_in, double fs, co
       needed = std::max(needed, xk * pk.f_hz / df);
     }
     mode.eta0_needed = std::max(needed, 5.0);
-    const double eta0_record = kTwoPi * pk.f_hz * after_s / 16.0;
-    double eta0 = opt.eta0 > 0 ? opt.eta0 : std::clamp(std::max(7.0, needed), 5.0, std::max(5.0, std::min(kMaxEta0, eta0_record)));
-    const double floor_white = floor_at(base, pk.f_hz);
-    EnvelopeResult er = estimate_envelope(signal, fs, eta0, pk.f_hz, floor_white, opt, env);
-    if (opt.eta0 <= 0 && std::isfinite(er.ridge_ls.zeta) && er.ridge_ls.zeta > 0 && std::isfinite(er.ridge_ls.snr_db)) {
+    double eta0 = opt_.eta0 > 0 ? opt_.eta0 : automatic_eta0(pk.f_hz, needed);
+    const double floor_white = floor_at(det_.base, pk.f_hz);
+    const std::span<const double> signal = rec_.signal;
+    EnvelopeResult er = estimate_envelope(signal, rec_.fs, eta0, pk.f_hz, floor_white, opt_, env_);
+    if (opt_.eta0 <= 0 && std::isfinite(er.ridge_ls.zeta) && er.ridge_ls.zeta > 0 && std::isfinite(er.ridge_ls.snr_db)) {
       // Usable decay length: until the envelope power falls to end_snr times the noise; the edge
       // effect (edge_widths kernel widths) plus a window of 6 widths must fit in it.
       const double sigma = decay_from_zeta(er.ridge_ls.zeta, kTwoPi * er.f_d);
       const double snr = std::pow(10.0, er.ridge_ls.snr_db / 10.0);
-      const double t_use = std::min(after_s, std::log(std::max(snr / env.end_snr, std::exp(1.0))) / (2.0 * sigma));
-      const double eta0_time = kTwoPi * pk.f_hz * t_use / (env.edge_widths + 6.0);
+      const double t_use = std::min(rec_.after_s, std::log(std::max(snr / env_.end_snr, std::exp(1.0))) / (2.0 * sigma));
+      const double eta0_time = kTwoPi * pk.f_hz * t_use / (env_.edge_widths + 6.0);
       if (eta0 > eta0_time * 1.05) {
         eta0 = std::max(5.0, eta0_time);
-        er = estimate_envelope(signal, fs, eta0, pk.f_hz, floor_white, opt, env);
+        er = estimate_envelope(signal, rec_.fs, eta0, pk.f_hz, floor_white, opt_, env_);
       }
     }
     mode.eta0 = eta0;
@@ -510,37 +628,38 @@ ModeSearchResult identify_modes(std::span<const double> signal_in, double fs, co
     // part in the joint fit (left out, it biases its neighbours' fits: Table 1 at eta0 50 lost the
     // 500 Hz mode and gave zeta 7 % off at 250 Hz with status ok). Its envelope estimators are then not
     // ok and the note says why.
-    if (opt.eta0 > 0 && !std::isfinite(er.ridge_ls.zeta)) {
-      const double eta0_auto = std::clamp(std::max(7.0, needed), 5.0, std::max(5.0, std::min(kMaxEta0, eta0_record)));
-      EnvelopeResult alt = estimate_envelope(signal, fs, eta0_auto, pk.f_hz, floor_white, opt, env);
+    if (opt_.eta0 > 0 && !std::isfinite(er.ridge_ls.zeta)) {
+      const double eta0_auto = automatic_eta0(pk.f_hz, needed);
+      EnvelopeResult alt = estimate_envelope(signal, rec_.fs, eta0_auto, pk.f_hz, floor_white, opt_, env_);
       if (std::isfinite(alt.ridge_ls.zeta)) {
         er = std::move(alt);
         wk.user_eta0_failed = true;
-        add_note(mode.note, "eta0 " + fmt_g(opt.eta0) + " cannot read this decay (its kernel is too long for it); read at eta0 " +
+        add_note(mode.note, "eta0 " + fmt_g(opt_.eta0) + " cannot read this decay (its kernel is too long for it); read at eta0 " +
                                 fmt_g(eta0_auto) + " for the fit, envelope estimators not ok");
       }
     }
     // A peak whose envelope gives no decay estimate at all is not a free-response mode (noise bump,
     // hum, the skirt of the record edge): leave it out of the joint fit and the report.
-    if (!std::isfinite(er.ridge_ls.zeta)) {
-      dropped.push_back(pk);
-      continue;
-    }
+    if (!std::isfinite(er.ridge_ls.zeta)) return false;
     wk.envr = std::move(er);
-    work.push_back(std::move(wk));
+    return true;
   }
-  // Unresolved neighbours among the kept modes.
-  for (std::size_t i = 0; i < work.size(); ++i)
-    for (std::size_t j = 0; j < work.size(); ++j) {
-      if (i == j) continue;
-      const double df = std::abs(work[j].peak.f_hz - work[i].peak.f_hz);
-      const double ratio = std::sqrt(std::max(1.0, work[j].peak.level / work[i].peak.level));
-      if (std::sqrt(2.0 * std::log(100.0 * ratio)) * work[i].peak.f_hz / df > work[i].mode.eta0) work[i].unresolved.push_back(j);
-    }
 
-  // 4. Maximum-likelihood refinement of all modes together, then alone where the joint fit failed.
-  if (!work.empty()) {
-    double latest_end_s = result.onset_s;
+  // Unresolved neighbours among the kept modes: those closer than the mode's eta0 separates.
+  static void mark_unresolved(std::vector<Work>& work) {
+    for (std::size_t i = 0; i < work.size(); ++i)
+      for (std::size_t j = 0; j < work.size(); ++j) {
+        if (i == j) continue;
+        const double df = std::abs(work[j].peak.f_hz - work[i].peak.f_hz);
+        const double ratio = std::sqrt(std::max(1.0, work[j].peak.level / work[i].peak.level));
+        if (std::sqrt(2.0 * std::log(100.0 * ratio)) * work[i].peak.f_hz / df > work[i].mode.eta0) work[i].unresolved.push_back(j);
+      }
+  }
+
+  // 4. Maximum-likelihood refinement of all modes together, then alone where the joint fit failed;
+  // sets each mode's ml estimate. Returns the fitted segment (from the onset).
+  std::span<const double> refine_ml(std::vector<Work>& work) const {
+    double latest_end_s = result_.onset_s;
     std::vector<ModeGuess> guesses;
     for (const Work& wk : work) {
       const DampingEstimate& r = wk.envr.ridge_ls;
@@ -549,45 +668,17 @@ ModeSearchResult identify_modes(std::span<const double> signal_in, double fs, co
     }
     // The fit covers the decay and as much again (noise-only samples add little information but
     // cost time on long records).
+    const std::size_t n = rec_.n, n0 = rec_.n0;
     std::size_t n_end = n;
-    const double span_s = std::max(latest_end_s - result.onset_s, 0.0);
-    const auto capped = n0 + static_cast<std::size_t>(std::ceil(3.0 * span_s * fs)) + 256;
+    const double span_s = std::max(latest_end_s - result_.onset_s, 0.0);
+    const auto capped = n0 + static_cast<std::size_t>(std::ceil(3.0 * span_s * rec_.fs)) + 256;
     if (n - n0 > (std::size_t{1} << 17)) n_end = std::min(n, capped);
-    const std::span<const double> seg = signal.subspan(n0, n_end - n0);
-    SpectralModeFitter fitter(n_end - n0, fs);
+    const std::span<const double> seg = rec_.signal.subspan(n0, n_end - n0);
+    SpectralModeFitter fitter(n_end - n0, rec_.fs);
     MlFitOptions ml_opt;
-    ml_opt.f_lo_hz = result.f_min_hz;
-    ml_opt.f_hi_hz = result.f_max_hz;
-    MlFitResult ml;
-    ml.modes.assign(guesses.size(), DampingEstimate{});
-    for (auto& e : ml.modes) e.method = DampingMethod::ml;
-    if (guesses.size() <= kMaxJointModes) {
-      try {
-        ml = fitter.fit(seg, guesses, ml_opt);
-      } catch (const std::exception&) {
-      }
-    } else {
-      // Many modes (real structures): the joint fit's cost grows with the cube of the parameters, so
-      // modes are fitted in groups of neighbours (consecutive modes less than 15 % apart), each over
-      // its own band (10 half-power bandwidths or 5 % beyond its outer modes); the residual terms take
-      // the tails of the other groups.
-      std::size_t g0 = 0;
-      while (g0 < guesses.size()) {
-        std::size_t g1 = g0 + 1;
-        while (g1 < guesses.size() && guesses[g1].f_hz < 1.15 * guesses[g1 - 1].f_hz && g1 - g0 < kMaxJointModes) ++g1;
-        MlFitOptions grp = ml_opt;
-        const ModeGuess& lo = guesses[g0];
-        const ModeGuess& hi = guesses[g1 - 1];
-        grp.f_lo_hz = std::max(result.f_min_hz, lo.f_hz * (1.0 - std::max(0.05, 10.0 * lo.zeta)));
-        grp.f_hi_hz = std::min(result.f_max_hz, hi.f_hz * (1.0 + std::max(0.05, 10.0 * hi.zeta)));
-        try {
-          const MlFitResult part = fitter.fit(seg, std::span<const ModeGuess>(guesses).subspan(g0, g1 - g0), grp);
-          for (std::size_t i = g0; i < g1; ++i) ml.modes[i] = part.modes[i - g0];
-        } catch (const std::exception&) {
-        }
-        g0 = g1;
-      }
-    }
+    ml_opt.f_lo_hz = result_.f_min_hz;
+    ml_opt.f_hi_hz = result_.f_max_hz;
+    const MlFitResult ml = fit_joint(fitter, seg, guesses, ml_opt);
     for (std::size_t i = 0; i < work.size(); ++i) {
       DampingEstimate e = ml.modes[i];
       if (e.status == EstimateStatus::fit_failed || !std::isfinite(e.zeta)) {
@@ -595,8 +686,8 @@ ModeSearchResult identify_modes(std::span<const double> signal_in, double fs, co
         const double f = guesses[i].f_hz;
         const double half = f * std::max({0.02, 20.0 * guesses[i].zeta, 3.0 / work[i].mode.eta0});
         MlFitOptions one = ml_opt;
-        one.f_lo_hz = std::max(result.f_min_hz, f - half);
-        one.f_hi_hz = std::min(result.f_max_hz, f + half);
+        one.f_lo_hz = std::max(result_.f_min_hz, f - half);
+        one.f_hi_hz = std::min(result_.f_max_hz, f + half);
         try {
           const MlFitResult alone = fitter.fit(seg, std::span<const ModeGuess>(&guesses[i], 1), one);
           e = alone.modes[0];
@@ -604,122 +695,230 @@ ModeSearchResult identify_modes(std::span<const double> signal_in, double fs, co
         } catch (const std::exception&) {
         }
       }
-      e.window_start_s += result.onset_s;
-      e.window_end_s += result.onset_s;
+      e.window_start_s += result_.onset_s;
+      e.window_end_s += result_.onset_s;
       e.snr_db = work[i].envr.ridge_ls.snr_db;
       work[i].mode.ml = e;
     }
-    // 3'. Modes not resolved from a neighbour: the envelope estimators read the signal with the
-    // neighbours' maximum-likelihood fits subtracted.
+    return seg;
+  }
+
+  // eta0 for mode i once its unresolved neighbours are subtracted: it need only separate the mode from
+  // the others (a smaller eta0 keeps more of the early decay), unless the user fixed it.
+  double deflated_eta0(const std::vector<Work>& work, std::size_t i) const {
+    double eta0_defl = work[i].mode.eta0;
+    if (opt_.eta0 > 0) return eta0_defl;
+    double needed = 0.0;
+    for (const Peak& q : det_.peaks) {
+      if (q.f_hz == work[i].peak.f_hz) continue;
+      bool gone = false;
+      for (std::size_t j : work[i].unresolved) gone = gone || q.f_hz == work[j].peak.f_hz;
+      if (gone) continue;
+      const double ratio = std::sqrt(std::max(1.0, q.level / work[i].peak.level));
+      needed = std::max(needed, std::sqrt(2.0 * std::log(100.0 * ratio)) * work[i].peak.f_hz / std::abs(q.f_hz - work[i].peak.f_hz));
+    }
+    return std::min(eta0_defl, std::max(7.0, needed));
+  }
+
+  // 3'. Modes not resolved from a neighbour: the envelope estimators read the signal with the
+  // neighbours' maximum-likelihood fits (amplitudes over seg) subtracted.
+  void read_deflated(std::vector<Work>& work, std::span<const double> seg) const {
     bool any = false;
     for (const Work& wk : work) any = any || !wk.unresolved.empty();
-    if (any) {
-      std::vector<std::pair<double, double>> fz;
-      std::vector<std::size_t> idx;
-      for (std::size_t i = 0; i < work.size(); ++i) {
-        const DampingEstimate& e = work[i].mode.ml;
-        if (std::isfinite(e.f_hz) && std::isfinite(e.zeta) && e.zeta > 0 && e.zeta < 1) {
-          fz.emplace_back(e.f_hz, e.zeta);
-          idx.push_back(i);
-        }
+    if (!any) return;
+    std::vector<std::pair<double, double>> fz;
+    std::vector<std::size_t> idx;
+    for (std::size_t i = 0; i < work.size(); ++i) {
+      const DampingEstimate& e = work[i].mode.ml;
+      if (std::isfinite(e.f_hz) && std::isfinite(e.zeta) && e.zeta > 0 && e.zeta < 1) {
+        fz.emplace_back(e.f_hz, e.zeta);
+        idx.push_back(i);
       }
-      const auto amps = mode_amplitudes(seg, fs, fz);
-      for (std::size_t i = 0; i < work.size(); ++i) {
-        if (work[i].unresolved.empty()) continue;
-        std::vector<double> y(signal.begin(), signal.end());
-        bool subtracted = false;
-        for (std::size_t j : work[i].unresolved) {
-          const auto it = std::find(idx.begin(), idx.end(), j);
-          if (it == idx.end()) continue;
-          const std::size_t k = static_cast<std::size_t>(it - idx.begin());
-          if (!std::isfinite(amps[k].real())) continue;
-          const double om = kTwoPi * fz[k].first, sg = decay_from_zeta(fz[k].second, om);
-          const std::complex<double> z = std::exp(std::complex<double>(-sg, om) / fs);
-          std::complex<double> zn = amps[k];
-          for (std::size_t t = n0; t < n; ++t) {
-            y[t] -= zn.real();
-            zn *= z;
-          }
-          subtracted = true;
-        }
-        if (!subtracted) continue;
-        // With those neighbours gone, eta0 need only separate the mode from the others (a smaller eta0
-        // keeps more of the early decay), unless the user fixed it.
-        double eta0_defl = work[i].mode.eta0;
-        if (opt.eta0 <= 0) {
-          double needed = 0.0;
-          for (const Peak& q : peaks) {
-            if (q.f_hz == work[i].peak.f_hz) continue;
-            bool gone = false;
-            for (std::size_t j : work[i].unresolved) gone = gone || q.f_hz == work[j].peak.f_hz;
-            if (gone) continue;
-            const double ratio = std::sqrt(std::max(1.0, q.level / work[i].peak.level));
-            needed = std::max(needed, std::sqrt(2.0 * std::log(100.0 * ratio)) * work[i].peak.f_hz / std::abs(q.f_hz - work[i].peak.f_hz));
-          }
-          eta0_defl = std::min(eta0_defl, std::max(7.0, needed));
-        }
-        EnvelopeResult er = estimate_envelope(y, fs, eta0_defl, work[i].peak.f_hz, floor_at(base, work[i].peak.f_hz), opt, env);
-        if (std::isfinite(er.ridge_ls.zeta)) {
-          work[i].mode.eta0 = eta0_defl;
-          work[i].envr = std::move(er);
-          add_note(work[i].mode.note, "envelope read with the unresolved neighbours' fits subtracted");
-        }
+    }
+    const auto amps = mode_amplitudes(seg, rec_.fs, fz);
+    for (std::size_t i = 0; i < work.size(); ++i) {
+      if (work[i].unresolved.empty()) continue;
+      std::vector<double> y(rec_.signal.begin(), rec_.signal.end());
+      bool subtracted = false;
+      for (std::size_t j : work[i].unresolved) {
+        const auto it = std::find(idx.begin(), idx.end(), j);
+        if (it == idx.end()) continue;
+        const std::size_t k = static_cast<std::size_t>(it - idx.begin());
+        if (!std::isfinite(amps[k].real())) continue;
+        subtract_mode(y, rec_.n0, rec_.n, rec_.fs, amps[k], fz[k]);
+        subtracted = true;
+      }
+      if (!subtracted) continue;
+      const double eta0_defl = deflated_eta0(work, i);
+      EnvelopeResult er = estimate_envelope(y, rec_.fs, eta0_defl, work[i].peak.f_hz, floor_at(det_.base, work[i].peak.f_hz), opt_, env_);
+      if (std::isfinite(er.ridge_ls.zeta)) {
+        work[i].mode.eta0 = eta0_defl;
+        work[i].envr = std::move(er);
+        add_note(work[i].mode.note, "envelope read with the unresolved neighbours' fits subtracted");
       }
     }
   }
 
-    for (const Work& wk : work)
-      if (std::isfinite(wk.mode.ml.f_hz) && wk.mode.ml.zeta > 0 && wk.mode.ml.zeta < 1) fitted.emplace_back(wk.mode.ml.f_hz, wk.mode.ml.zeta);
-    return work;
-  };
-  std::vector<Work> work = analyse(cand);
-  // Modes hidden by a stronger neighbour (closer than any scan resolves, e.g. a pair 0.2 % apart):
-  // the fine scans again on the residual of the joint fit. A new peak in the band that stands above the
-  // floor and is not one already known joins the candidates, and the analysis runs once more.
-  if (!fitted.empty()) {
-    std::vector<double> res(signal.begin(), signal.end());
-    const auto amps = mode_amplitudes(signal.subspan(n0), fs, fitted);
-    for (std::size_t j = 0; j < fitted.size(); ++j) {
-      if (!std::isfinite(amps[j].real())) continue;
-      const double om = kTwoPi * fitted[j].first, sg = decay_from_zeta(fitted[j].second, om);
-      const std::complex<double> z = std::exp(std::complex<double>(-sg, om) / fs);
-      std::complex<double> zn = amps[j];
-      for (std::size_t t = n0; t < n; ++t) {
-        res[t] -= zn.real();
-        zn *= z;
-      }
-    }
-    double df = 0.0;
-    const std::vector<double> pg = periodogram(res, fs, df);
-    std::vector<Peak> extra;
-    for (double eta0 : kDetectFineEta0) {
-      if (eta0 < 100.0) continue;  // hidden neighbours are close: the fine resolutions only
-      const LevelScan lv = smoothed_level(pg, df, eta0, result.f_min_hz, result.f_max_hz, duration_s, base, opt.voices_per_octave);
-      std::vector<Peak> found;
-      find_peaks(lv, min_ratio, found);
-      for (const Peak& p : found) {
-        bool known = false;
-        for (const Peak& q : peaks) known = known || std::abs(std::log(q.f_hz / p.f_hz)) < 2.0 / eta0;
-        for (const Peak& q : extra) known = known || std::abs(std::log(q.f_hz / p.f_hz)) < 2.0 / eta0;
-        if (!known) extra.push_back(p);
-      }
-    }
-    if (!extra.empty()) {
-      std::sort(extra.begin(), extra.end(), [](const Peak& x, const Peak& y) { return x.level > y.level; });
-      if (extra.size() > kMaxHiddenModes) extra.resize(kMaxHiddenModes);
-      for (const Peak& p : extra) {
-        peaks.push_back(p);
-        cand.push_back(p);
-        result.peaks.push_back({p.f_hz, 10.0 * std::log10(p.level), p.eta0});
-      }
-      std::sort(peaks.begin(), peaks.end(), [](const Peak& x, const Peak& y) { return x.f_hz < y.f_hz; });
-      std::sort(cand.begin(), cand.end(), [](const Peak& x, const Peak& y) { return x.f_hz < y.f_hz; });
-      std::sort(result.peaks.begin(), result.peaks.end(), [](const DetectedPeak& x, const DetectedPeak& y) { return x.f_hz < y.f_hz; });
-      work = analyse(cand);
+  const Record& rec_;
+  const ModeSearchOptions& opt_;
+  const ModeSearchResult& result_;
+  const Detection& det_;
+  EnvelopeOptions env_;  // opt.envelope with the onset
+  std::vector<std::pair<double, double>> fitted_;
+  std::vector<Peak> dropped_;
+};
+
+// Modes hidden by a stronger neighbour (closer than any scan resolves, e.g. a pair 0.2 % apart): the
+// fine scans again on the residual of the joint fit (the fitted modes subtracted). Returns the new
+// peaks in the band that stand above the floor and are not one already known, strongest first, at
+// most kMaxHiddenModes.
+std::vector<Peak> hidden_peaks(const Record& rec, const Detection& det, const std::vector<std::pair<double, double>>& fitted,
+                               const ModeSearchOptions& opt, const ModeSearchResult& result) {
+  std::vector<double> res(rec.signal.begin(), rec.signal.end());
+  const auto amps = mode_amplitudes(rec.signal.subspan(rec.n0), rec.fs, fitted);
+  for (std::size_t j = 0; j < fitted.size(); ++j) {
+    if (!std::isfinite(amps[j].real())) continue;
+    subtract_mode(res, rec.n0, rec.n, rec.fs, amps[j], fitted[j]);
+  }
+  double df = 0.0;
+  const std::vector<double> pg = periodogram(res, rec.fs, df);
+  std::vector<Peak> extra;
+  for (double eta0 : kDetectFineEta0) {
+    if (eta0 < 100.0) continue;  // hidden neighbours are close: the fine resolutions only
+    const LevelScan lv = smoothed_level(pg, df, eta0, result.f_min_hz, result.f_max_hz, rec.duration_s, det.base, opt.voices_per_octave);
+    std::vector<Peak> found;
+    find_peaks(lv, det.min_ratio, found);
+    for (const Peak& p : found) {
+      bool known = false;
+      for (const Peak& q : det.peaks) known = known || std::abs(std::log(q.f_hz / p.f_hz)) < 2.0 / eta0;
+      for (const Peak& q : extra) known = known || std::abs(std::log(q.f_hz / p.f_hz)) < 2.0 / eta0;
+      if (!known) extra.push_back(p);
     }
   }
+  std::sort(extra.begin(), extra.end(), [](const Peak& x, const Peak& y) { return x.level > y.level; });
+  if (extra.size() > kMaxHiddenModes) extra.resize(kMaxHiddenModes);
+  return extra;
+}
 
-  // 5. Status rules.
+// Adds the hidden peaks to the detected peaks, the candidates and the result's peak list (each kept
+// sorted by frequency).
+void add_hidden_peaks(const std::vector<Peak>& extra, Detection& det, std::vector<Peak>& cand, ModeSearchResult& result) {
+  for (const Peak& p : extra) {
+    det.peaks.push_back(p);
+    cand.push_back(p);
+    result.peaks.push_back({p.f_hz, 10.0 * std::log10(p.level), p.eta0});
+  }
+  std::sort(det.peaks.begin(), det.peaks.end(), [](const Peak& x, const Peak& y) { return x.f_hz < y.f_hz; });
+  std::sort(cand.begin(), cand.end(), [](const Peak& x, const Peak& y) { return x.f_hz < y.f_hz; });
+  std::sort(result.peaks.begin(), result.peaks.end(), [](const DetectedPeak& x, const DetectedPeak& y) { return x.f_hz < y.f_hz; });
+}
+
+// A ridge that left its mode: its frequency changes between the window halves by more than half
+// the filter's standard deviation and beyond noise, or it sits nearer another detected peak.
+bool ridge_left_mode(const Work& wk) {
+  const IdentifiedMode& m = wk.mode;
+  const EnvelopeResult& er = wk.envr;
+  bool left = false;
+  if (std::isfinite(er.f_first) && std::isfinite(er.f_second)) {
+    const double d = std::abs(er.f_first - er.f_second);
+    const double sd = std::hypot(std::isfinite(er.f_first_sd) ? er.f_first_sd : 0.0, std::isfinite(er.f_second_sd) ? er.f_second_sd : 0.0);
+    left = d > 4.0 * sd && d > 0.5 * er.f_d / m.eta0;
+  }
+  if (std::isfinite(m.neighbour_hz) && std::isfinite(er.f_d) &&
+      std::abs(er.f_d - m.neighbour_hz) < std::abs(er.f_d - wk.peak.f_hz))
+    left = true;
+  return left;
+}
+
+// A detected peak that was left out (no envelope estimate) close to this mode: the fits
+// of this mode may have absorbed it (random independent signals: a pair 3.9 Hz apart at 241/245 Hz,
+// the 245 Hz peak left out, the 241 Hz mode's zeta 21 % off with status ok).
+void check_dropped_neighbours(Work& wk, const std::vector<Peak>& dropped, double after_s) {
+  IdentifiedMode& m = wk.mode;
+  for (const Peak& q : dropped) {
+    const double df = std::abs(q.f_hz - wk.peak.f_hz);
+    // Only a peak within 10 dB of this one matters (it can pull the fit); weaker ones are noise bumps
+    // and minor modes whose share the estimators' cross-check sees.
+    // And only one farther than 3 half-power bandwidths of this mode: nearer, it is this mode's own
+    // peak seen again (short, heavily damped decays between impacts show that).
+    const double zeta_own = std::isfinite(m.ml.zeta) ? m.ml.zeta : m.ridge_ls.zeta;
+    const bool own = std::isfinite(zeta_own) && df <= 3.0 * zeta_own * wk.peak.f_hz;
+    // Within 6 / T of the analysed length T (a few of the record's frequency resolution 1 / T): closer,
+    // the fit cannot tell the two apart unless both are modelled (the 241/245 Hz pair is 4.2 / T
+    // apart); farther, the joint fit's band and residual terms keep them apart (a stationary line
+    // 200 Hz from a mode in a 40 ms segment between impacts does no harm).
+    if (df > 0 && !own && q.level >= 0.1 * wk.peak.level && df < 6.0 / after_s) {
+      for (DampingEstimate* e : {&m.two_point, &m.ridge_ls, &m.ml})
+        if (e->status == EstimateStatus::ok) e->status = EstimateStatus::inconsistent;
+      add_note(m.note, "a detected neighbour at " + fmt_g(q.f_hz) + " Hz could not be analysed: this mode's fit may include it");
+    }
+  }
+}
+
+// Variation of zeta along the decay (the backbone's points), see check_backbone_variation.
+struct Variation {
+  bool varies = false;       // the backbone's zeta varies beyond its uncertainties
+  bool unexplained = false;  // ... and no amplitude law explains it
+};
+
+// Variation of zeta along the decay beyond the points' uncertainties (chi2 / dof > 4) or a backbone
+// test that found amplitude dependence: the note gives the range of the backbone's zeta (and the
+// amplitudes), so that a single viscous zeta is never read as valid at every amplitude. A variation
+// that the fitted amplitude law explains (its chi2 / dof <= 4) is physics (friction, quadratic
+// damping) and the viscous equivalent over the window stays a meaningful number. A variation that
+// no monotone law explains is what an unresolved neighbour does (the envelope beats) or a ridge that
+// does not follow one mode: then no estimate of this mode is ok (random independent signals: every
+// such case had an undetected neighbour, zeta off by 4-19 %, tests/test_modes_property.cpp).
+Variation check_backbone_variation(IdentifiedMode& m) {
+  Variation out;
+  if (!(m.backbone.tested && (m.backbone.amplitude_dependent || m.backbone.chi2_constant > 4.0 * static_cast<double>(m.backbone.dof))))
+    return out;
+  double zlo = INFINITY, zhi = -INFINITY, alo = INFINITY, ahi = -INFINITY, chi2_law = 0.0;
+  std::size_t used = 0;
+  for (const BackbonePoint& p : m.backbone.points)
+    if (std::isfinite(p.zeta) && std::isfinite(p.amplitude)) {
+      zlo = std::min(zlo, p.zeta);
+      zhi = std::max(zhi, p.zeta);
+      alo = std::min(alo, p.amplitude);
+      ahi = std::max(ahi, p.amplitude);
+      if (m.backbone.amplitude_dependent && std::isfinite(p.zeta_sd) && p.zeta_sd > 0 && p.amplitude > 0) {
+        const double g = m.backbone.law == BackboneLaw::coulomb ? 1.0 / p.amplitude : p.amplitude;
+        const double r = (p.zeta - (m.backbone.a + m.backbone.b * g)) / p.zeta_sd;
+        chi2_law += r * r;
+        ++used;
+      }
+    }
+  if (!(zlo <= zhi)) return out;
+  out.varies = true;
+  const bool law_fits = m.backbone.amplitude_dependent && used > 2 && std::isfinite(chi2_law) &&
+                        chi2_law <= 4.0 * static_cast<double>(used - 2);
+  // Relative scatter of the precise points (zeta_sd < 25 % of zeta) about their mean.
+  double s1 = 0, s2 = 0, k = 0;
+  for (const BackbonePoint& p : m.backbone.points)
+    if (std::isfinite(p.zeta) && std::isfinite(p.zeta_sd) && p.zeta_sd < 0.25 * p.zeta) {
+      s1 += p.zeta;
+      s2 += p.zeta * p.zeta;
+      k += 1;
+    }
+  const double scatter = k > 2 ? std::sqrt(std::max(0.0, s2 / k - (s1 / k) * (s1 / k))) / (s1 / k) : NAN;
+  // Not for a mode whose envelope was read with neighbours' fits subtracted: their residual errors
+  // pass as variation (the hammer hit's 5970 Hz mode, ml and ridge-ls agreeing to 0.1 %, scatters
+  // 29 % after its 5984 Hz neighbour is subtracted).
+  const bool deflated = m.note.find("subtracted") != std::string::npos;
+  out.unexplained = !deflated && m.backbone.chi2_constant > 4.0 * static_cast<double>(m.backbone.dof) && !law_fits &&
+                    !(scatter <= kMaxUnexplainedScatter);
+  add_note(m.note, "zeta varies along the decay: backbone zeta " + fmt_g(zlo) + " .. " + fmt_g(zhi) + " over amplitudes " +
+                       fmt_g(alo) + " .. " + fmt_g(ahi) + " (scatter " + fmt_g(100 * scatter) + " %)" +
+                       (out.unexplained ? "; no amplitude law explains the variation (an unresolved neighbour beating?)"
+                                        : "; zeta is the viscous equivalent over the window"));
+  return out;
+}
+
+// 5. Status rules ("ok is a promise", modes.hpp): each analysed mode's estimates sanitised, checked
+// against each other and against the signs of a ridge that did not read one mode; the modes, with
+// the requested method's estimate selected, go to result.modes.
+void apply_status_rules(std::vector<Work>& work, const std::vector<Peak>& dropped, double after_s,
+                        const ModeSearchOptions& opt, ModeSearchResult& result) {
   for (Work& wk : work) {
     IdentifiedMode& m = wk.mode;
     const EnvelopeResult& er = wk.envr;
@@ -730,43 +929,12 @@ ModeSearchResult identify_modes(std::span<const double> signal_in, double fs, co
     if (wk.user_eta0_failed)
       for (DampingEstimate* e : {&m.two_point, &m.ridge_ls})
         if (e->status == EstimateStatus::ok) e->status = EstimateStatus::too_short;
-    // A ridge that left its mode: its frequency changes between the window halves by more than half
-    // the filter's standard deviation and beyond noise, or it sits nearer another detected peak.
-    bool left = false;
-    if (std::isfinite(er.f_first) && std::isfinite(er.f_second)) {
-      const double d = std::abs(er.f_first - er.f_second);
-      const double sd = std::hypot(std::isfinite(er.f_first_sd) ? er.f_first_sd : 0.0, std::isfinite(er.f_second_sd) ? er.f_second_sd : 0.0);
-      left = d > 4.0 * sd && d > 0.5 * er.f_d / m.eta0;
-    }
-    if (std::isfinite(m.neighbour_hz) && std::isfinite(er.f_d) &&
-        std::abs(er.f_d - m.neighbour_hz) < std::abs(er.f_d - wk.peak.f_hz))
-      left = true;
-    if (left) {
+    if (ridge_left_mode(wk)) {
       for (DampingEstimate* e : {&m.two_point, &m.ridge_ls})
         if (e->status == EstimateStatus::ok) e->status = EstimateStatus::inconsistent;
       add_note(m.note, "the ridge left its mode (frequency drifts within the window)");
     }
-    // A detected peak that was left out (no envelope estimate) close to this mode: the fits
-    // of this mode may have absorbed it (random independent signals: a pair 3.9 Hz apart at 241/245 Hz,
-    // the 245 Hz peak left out, the 241 Hz mode's zeta 21 % off with status ok).
-    for (const Peak& q : dropped) {
-      const double df = std::abs(q.f_hz - wk.peak.f_hz);
-      // Only a peak within 10 dB of this one matters (it can pull the fit); weaker ones are noise bumps
-      // and minor modes whose share the estimators' cross-check sees.
-      // And only one farther than 3 half-power bandwidths of this mode: nearer, it is this mode's own
-      // peak seen again (short, heavily damped decays between impacts show that).
-      const double zeta_own = std::isfinite(m.ml.zeta) ? m.ml.zeta : m.ridge_ls.zeta;
-      const bool own = std::isfinite(zeta_own) && df <= 3.0 * zeta_own * wk.peak.f_hz;
-      // Within 6 / T of the analysed length T (a few of the record's frequency resolution 1 / T): closer,
-      // the fit cannot tell the two apart unless both are modelled (the 241/245 Hz pair is 4.2 / T
-      // apart); farther, the joint fit's band and residual terms keep them apart (a stationary line
-      // 200 Hz from a mode in a 40 ms segment between impacts does no harm).
-      if (df > 0 && !own && q.level >= 0.1 * wk.peak.level && df < 6.0 / after_s) {
-        for (DampingEstimate* e : {&m.two_point, &m.ridge_ls, &m.ml})
-          if (e->status == EstimateStatus::ok) e->status = EstimateStatus::inconsistent;
-        add_note(m.note, "a detected neighbour at " + fmt_g(q.f_hz) + " Hz could not be analysed: this mode's fit may include it");
-      }
-    }
+    check_dropped_neighbours(wk, dropped, after_s);
     // An ml fit that converged away from the spectral peak it started from (by more than two standard
     // deviations of the filter that resolved the peak and by more than three of its own): it fitted a blend of
     // this mode and an unresolved neighbour (seen on random independent signals: a peak at 627.6 Hz
@@ -776,57 +944,7 @@ ModeSearchResult identify_modes(std::span<const double> signal_in, double fs, co
       m.ml.status = EstimateStatus::inconsistent;
       add_note(m.note, "ml left its spectral peak (" + fmt_g(wk.peak.f_hz) + " Hz): a blend with an unresolved neighbour?");
     }
-    // Variation of zeta along the decay beyond the points' uncertainties (chi2 / dof > 4) or a backbone
-    // test that found amplitude dependence: the note gives the range of the backbone's zeta (and the
-    // amplitudes), so that a single viscous zeta is never read as valid at every amplitude. A variation
-    // that the fitted amplitude law explains (its chi2 / dof <= 4) is physics (friction, quadratic
-    // damping) and the viscous equivalent over the window stays a meaningful number. A variation that
-    // no monotone law explains is what an unresolved neighbour does (the envelope beats) or a ridge that
-    // does not follow one mode: then no estimate of this mode is ok (random independent signals: every
-    // such case had an undetected neighbour, zeta off by 4-19 %, tests/test_modes_property.cpp).
-    bool varies = false, unexplained = false;
-    double scatter = NAN;
-    if (m.backbone.tested && (m.backbone.amplitude_dependent || m.backbone.chi2_constant > 4.0 * static_cast<double>(m.backbone.dof))) {
-      double zlo = INFINITY, zhi = -INFINITY, alo = INFINITY, ahi = -INFINITY, chi2_law = 0.0;
-      std::size_t used = 0;
-      for (const BackbonePoint& p : m.backbone.points)
-        if (std::isfinite(p.zeta) && std::isfinite(p.amplitude)) {
-          zlo = std::min(zlo, p.zeta);
-          zhi = std::max(zhi, p.zeta);
-          alo = std::min(alo, p.amplitude);
-          ahi = std::max(ahi, p.amplitude);
-          if (m.backbone.amplitude_dependent && std::isfinite(p.zeta_sd) && p.zeta_sd > 0 && p.amplitude > 0) {
-            const double g = m.backbone.law == BackboneLaw::coulomb ? 1.0 / p.amplitude : p.amplitude;
-            const double r = (p.zeta - (m.backbone.a + m.backbone.b * g)) / p.zeta_sd;
-            chi2_law += r * r;
-            ++used;
-          }
-        }
-      if (zlo <= zhi) {
-        varies = true;
-        const bool law_fits = m.backbone.amplitude_dependent && used > 2 && std::isfinite(chi2_law) &&
-                              chi2_law <= 4.0 * static_cast<double>(used - 2);
-        // Relative scatter of the precise points (zeta_sd < 25 % of zeta) about their mean.
-        double s1 = 0, s2 = 0, k = 0;
-        for (const BackbonePoint& p : m.backbone.points)
-          if (std::isfinite(p.zeta) && std::isfinite(p.zeta_sd) && p.zeta_sd < 0.25 * p.zeta) {
-            s1 += p.zeta;
-            s2 += p.zeta * p.zeta;
-            k += 1;
-          }
-        scatter = k > 2 ? std::sqrt(std::max(0.0, s2 / k - (s1 / k) * (s1 / k))) / (s1 / k) : NAN;
-        // Not for a mode whose envelope was read with neighbours' fits subtracted: their residual errors
-        // pass as variation (the hammer hit's 5970 Hz mode, ml and ridge-ls agreeing to 0.1 %, scatters
-        // 29 % after its 5984 Hz neighbour is subtracted).
-        const bool deflated = m.note.find("subtracted") != std::string::npos;
-        unexplained = !deflated && m.backbone.chi2_constant > 4.0 * static_cast<double>(m.backbone.dof) && !law_fits &&
-                      !(scatter <= kMaxUnexplainedScatter);
-        add_note(m.note, "zeta varies along the decay: backbone zeta " + fmt_g(zlo) + " .. " + fmt_g(zhi) + " over amplitudes " +
-                             fmt_g(alo) + " .. " + fmt_g(ahi) + " (scatter " + fmt_g(100 * scatter) + " %)" +
-                             (unexplained ? "; no amplitude law explains the variation (an unresolved neighbour beating?)"
-                                          : "; zeta is the viscous equivalent over the window"));
-      }
-    }
+    const auto [varies, unexplained] = check_backbone_variation(m);
     if (unexplained)
       for (DampingEstimate* e : {&m.two_point, &m.ridge_ls, &m.ml})
         if (e->status == EstimateStatus::ok) e->status = EstimateStatus::inconsistent;
@@ -867,15 +985,41 @@ ModeSearchResult identify_modes(std::span<const double> signal_in, double fs, co
   }
   std::sort(result.modes.begin(), result.modes.end(),
             [](const IdentifiedMode& a, const IdentifiedMode& b) { return a.selected.f_hz < b.selected.f_hz; });
-  if (result.modes.empty()) {
-    std::size_t in_band = 0;
-    for (const Peak& p : peaks) in_band += p.f_hz >= result.f_min_hz && p.f_hz <= result.f_max_hz;
-    if (in_band == 0)
-      result.note = "no spectral peak in the band stands " + std::to_string(opt.min_peak_snr_db) +
-                    " dB above the noise floor (" + std::to_string(peaks.size()) + " outside the band)";
-    else
-      result.note = std::to_string(in_band) + " peak(s) in the band, but none decays like a free response";
+}
+
+// When no mode was found: why.
+std::string no_mode_note(const std::vector<Peak>& peaks, const ModeSearchResult& result, const ModeSearchOptions& opt) {
+  std::size_t in_band = 0;
+  for (const Peak& p : peaks) in_band += p.f_hz >= result.f_min_hz && p.f_hz <= result.f_max_hz;
+  if (in_band == 0)
+    return "no spectral peak in the band stands " + std::to_string(opt.min_peak_snr_db) +
+           " dB above the noise floor (" + std::to_string(peaks.size()) + " outside the band)";
+  return std::to_string(in_band) + " peak(s) in the band, but none decays like a free response";
+}
+
+}  // namespace
+
+ModeSearchResult identify_modes(std::span<const double> signal_in, double fs, const ModeSearchOptions& opt) {
+  check_options(signal_in, fs, opt);
+  ModeSearchResult result;
+  const Record rec = analysed_part(signal_in, fs, opt, result);
+  Detection det = detect_peaks(rec, opt, result);
+  std::vector<Peak> cand = strongest_in_band(det.peaks, result, opt.max_modes);
+
+  ModeAnalysis analysis(rec, opt, result, det);
+  std::vector<Work> work = analysis.run(cand);
+  // Hidden modes found on the residual of the joint fit join the candidates; the analysis runs once
+  // more with them.
+  if (!analysis.fitted().empty()) {
+    const std::vector<Peak> extra = hidden_peaks(rec, det, analysis.fitted(), opt, result);
+    if (!extra.empty()) {
+      add_hidden_peaks(extra, det, cand, result);
+      work = analysis.run(cand);
+    }
   }
+
+  apply_status_rules(work, analysis.dropped(), rec.after_s, opt, result);
+  if (result.modes.empty()) result.note = no_mode_note(det.peaks, result, opt);
   return result;
 }
 

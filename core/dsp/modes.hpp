@@ -1,33 +1,39 @@
 // Multi-mode identification of one free response (the paper's Section 3 procedure and numerical
 // example, Eq. 15-19), with better estimators than the two-point decrement:
 //
-//  1. Detection, independent of the band and eta0 the user asks for: CWTs at a ladder of resolutions
-//     (eta0 = 7, 20, 50; a row is used only where its kernel fits the record 16 times) over the whole
-//     usable band [auto f_min, 0.45 fs]. Per row, the time-integrated energy over the row's white-noise
-//     gain is a spectrum; the noise floor is what is noise: the lower quartile of each row's |W|^2 in
-//     time (where the row holds only noise, after the decays), then the 25 % quantile of those over
-//     +-1 octave of rows (robust to modes that outlast the record). Peaks standing min_peak_snr_db above
-//     the floor are modes (Eq. 15: linearity of the CWT separates the components); a peak at a coarse
-//     resolution that a finer one already resolved is the same mode.
-//  2. eta0 per mode from the data (Boltezar-Slavic / Staszewski): large enough that the nearest
-//     detected neighbour (Delta f away, r times stronger) leaks less than 1 % into the mode's row,
-//     eta0 >= x f / Delta f with x = sqrt(2 ln(100 max(1, r))) (the Gaussian filter's skirt); small enough
-//     that the edge effect (4 kernel widths) plus a 4-width window fit in the decay's usable length
-//     (until its envelope falls to end_snr times the noise) and the record. Where both cannot hold the
-//     time limit wins and the mode is marked as not resolved from its neighbour (the envelope estimators
-//     then read the signal with the neighbours' maximum-likelihood fits subtracted).
-//  3. For each mode: phase slope of W along the row gives the damped frequency (unbiased); the row at
-//     that frequency gives the wavelet envelope (Eq. 12), its window, the two-point (Eq. 17-19) and
-//     the ridge least-squares estimates, and the backbone (backbone.hpp).
-//  4. All modes in the band are refined together by the maximum-likelihood fit of ml_fit.hpp; a mode
-//     whose joint fit fails is refitted alone in a band around it.
-//  5. Status rules ("ok is a promise"): estimators that disagree beyond their uncertainties (no extra
-//     room when zeta varies along the decay), a ridge whose frequency drifts within its window (it left
-//     the mode), an ml fit that left its spectral peak, a backbone scattering > 25 % that no amplitude
-//     law explains (beating of an unresolved neighbour), a close detected peak left out of the fit,
-//     zeta <= 0 or >= 1 (values null), a frequency outside the band: not ok, with a note. A varying
-//     zeta is stated in the note with its backbone range. A mode the user's eta0 cannot read stays in
-//     the joint fit (read at the automatic eta0) and is reported, not ok.
+//  1. Detection (detect_peaks), independent of the band and eta0 the user asks for, over the whole
+//     usable band [auto f_min, 0.45 fs]: energy spectra at a ladder of resolutions eta0 = 7 .. 1000
+//     (by Parseval, a row's time-mean |W|^2 is the periodogram weighted by the filter's power response,
+//     so they come from one FFT; a resolution is used only where its filter's sd f / eta0 spans 1.5
+//     periodogram bins), in units of the row's white-noise gain. The noise floor is what is noise: an
+//     eta0 = 7 CWT (rows where the kernel fits the record 16 times), the lower quartile of each row's
+//     |W|^2 in time (where the row holds only noise, after the decays), then the 25 % quantile of those
+//     over +-1 octave of rows (robust to modes that outlast the record). Peaks standing min_peak_snr_db
+//     above the floor are modes (Eq. 15: linearity of the CWT separates the components); a peak at a
+//     coarse resolution that a finer one already resolved is the same mode.
+//  2. eta0 per mode from the data (ModeAnalysis::read_candidate; Boltezar-Slavic / Staszewski): large
+//     enough that the nearest detected neighbour (Delta f away, r times stronger) leaks less than 1 %
+//     into the mode's row, eta0 >= x f / Delta f with x = sqrt(2 ln(100 max(1, r))) (the Gaussian
+//     filter's skirt); small enough that the edge effect (edge_widths kernel widths) plus a 6-width
+//     window fit in the decay's usable length (until its envelope falls to end_snr times the noise) and
+//     the record. Where both cannot hold the time limit wins and the mode is marked as not resolved
+//     from its neighbour (the envelope estimators then read the signal with the neighbours'
+//     maximum-likelihood fits subtracted: read_deflated).
+//  3. For each mode (estimate_envelope): phase slope of W along the row gives the damped frequency
+//     (unbiased); the row at that frequency gives the wavelet envelope (Eq. 12), its window, the
+//     two-point (Eq. 17-19) and the ridge least-squares estimates, and the backbone (backbone.hpp).
+//  4. All modes in the band are refined together by the maximum-likelihood fit of ml_fit.hpp
+//     (refine_ml); a mode whose joint fit fails is refitted alone in a band around it. Modes hidden by
+//     a stronger neighbour (closer than any scan resolves) are searched for once on the residual of the
+//     joint fit (hidden_peaks); found ones join the candidates and steps 2-4 run again.
+//  5. Status rules (apply_status_rules; "ok is a promise"): estimators that disagree beyond their
+//     uncertainties (no extra room when zeta varies along the decay), a ridge whose frequency drifts
+//     within its window (it left the mode), an ml fit that left its spectral peak, a backbone
+//     scattering > 25 % that no amplitude law explains (beating of an unresolved neighbour), a close
+//     detected peak left out of the fit, zeta <= 0 or >= 1 (values null), a frequency outside the
+//     band: not ok, with a note. A varying zeta is stated in the note with its backbone range. A mode
+//     the user's eta0 cannot read stays in the joint fit (read at the automatic eta0) and is reported,
+//     not ok.
 #pragma once
 
 #include <cstddef>

@@ -1,12 +1,11 @@
 #include "core/dsp/morlet_cwt.hpp"
 
 #include "core/dsp/fftw_planner.hpp"
+#include "core/dsp/kernels/half_rate_121.hpp"
 
 #include <fftw3.h>
 
 #include <algorithm>
-#include <bit>
-#include <cstdint>
 #include <cmath>
 #include <cstring>
 #include <initializer_list>
@@ -14,7 +13,6 @@
 #include <numbers>
 #include <stdexcept>
 #include <string>
-#include <type_traits>
 
 namespace ridgewatch::dsp {
 
@@ -77,8 +75,8 @@ bool is_smooth(std::size_t n, std::initializer_list<std::size_t> primes) {
   return n == 1;
 }
 
-// Smallest n' >= n whose only prime factors are 2, 3, 5 (the lengths FFTW transforms fastest; with
-// FFTW_MEASURE a length of 23520 = 2^5 3 5 7^2 measured 1.9x slower than 24576 = 2^13 3).
+// Smallest n' >= n whose only prime factors are 2, 3, 5 (the lengths FFTW transforms fastest: a
+// factor 7^2 made a measured plan about twice as slow, docs/performance.md "cwt").
 std::size_t next_fast_size(std::size_t n) {
   if (n <= 1) return 1;
   while (!is_smooth(n, {2, 3, 5})) ++n;
@@ -123,109 +121,6 @@ std::vector<double> make_frequency_grid(double f_min_hz, double f_max_hz, std::s
 
 namespace {
 
-// Interior outputs m in [m0, m1) (every tap in range), with the running maximum of |x| over the two
-// samples 2m, 2m+1 that each output step reads first. Eight lanes of maxima: one lane is a serial
-// chain of compare-selects (measured: 0.8 us for 1894 samples with 4 lanes, 0.5 us with 8).
-// One output of the (1, 2, 1)/4 copy from its three taps, widened to double (the same operations in
-// every path, so all give the same rounding).
-template <typename In>
-double taps_121(const In* x, std::size_t k) {
-  const double a = static_cast<double>(x[k - 1]), b = static_cast<double>(x[k]), c = static_cast<double>(x[k + 1]);
-  return 0.25 * (a + c) + 0.5 * b;
-}
-
-template <bool kFloat, typename In>
-[[gnu::noinline]] double decimate_interior(const In* __restrict x, double* __restrict y, float* __restrict yf,
-                                           std::size_t m0, std::size_t m1) {
-  double pk[8] = {};
-  std::size_t m = m0;
-  for (; m + 4 <= m1; m += 4) {
-    for (int j = 0; j < 4; ++j) {
-      const std::size_t k = 2 * (m + static_cast<std::size_t>(j));
-      const double a = static_cast<double>(x[k - 1]), b = static_cast<double>(x[k]), c = static_cast<double>(x[k + 1]);
-      const double v = 0.25 * (a + c) + 0.5 * b;
-      y[m + static_cast<std::size_t>(j)] = v;
-      if constexpr (kFloat) yf[m + static_cast<std::size_t>(j)] = static_cast<float>(v);
-      const double pb = std::abs(b), pc = std::abs(c);
-      pk[2 * j] = pb > pk[2 * j] ? pb : pk[2 * j];
-      pk[2 * j + 1] = pc > pk[2 * j + 1] ? pc : pk[2 * j + 1];
-    }
-  }
-  double peak = 0.0;
-  for (int j = 0; j < 8; ++j) peak = std::max(peak, pk[j]);
-  for (; m < m1; ++m) {
-    const std::size_t k = 2 * m;
-    const double v = taps_121(x, k);
-    y[m] = v;
-    if constexpr (kFloat) yf[m] = static_cast<float>(v);
-    peak = std::max(peak, std::max(std::abs(static_cast<double>(x[k])), std::abs(static_cast<double>(x[k + 1]))));
-  }
-  return peak;
-}
-
-// The same for float input (the impact analyzer's windows), four outputs per step in vector lanes:
-// x[2m .. 2m+7] in two loads, widened to double four samples at a time (__builtin_convertvector to a
-// four-double vector; GCC 12 turns a two-float one into a scalar conversion per sample), split into
-// the even samples and the odd ones, the odd ones shifted by one output for the left taps (lane 1 of
-// odd_prev: the previous step's last odd sample), and combined with exactly the scalar arithmetic
-// above (same rounding). The same two loads feed max |x| (exact in float) in two sets of four lanes.
-// Measured (one session, 1894-sample windows): two outputs per step (five scalar conversions) and a
-// separate peak pass (one serial chain of maxima) 1.25 us per window, this form 0.70 us.
-using Float4 = float __attribute__((vector_size(4 * sizeof(float))));
-using Float4u = float __attribute__((vector_size(4 * sizeof(float)), aligned(alignof(float))));
-using Double2 = double __attribute__((vector_size(2 * sizeof(double))));
-using Double2u = double __attribute__((vector_size(2 * sizeof(double)), aligned(alignof(double))));
-using Double4 = double __attribute__((vector_size(4 * sizeof(double))));
-using UInt4 = std::uint32_t __attribute__((vector_size(4 * sizeof(std::uint32_t))));
-
-template <bool kFloat>
-[[gnu::noinline]] double decimate_interior_f32(const float* __restrict x, double* __restrict y, float* __restrict yf,
-                                               std::size_t m0, std::size_t m1) {
-  const UInt4 abs_mask = {0x7FFFFFFFU, 0x7FFFFFFFU, 0x7FFFFFFFU, 0x7FFFFFFFU};  // clears the sign bit
-  const Double2 quarter = {0.25, 0.25}, half = {0.5, 0.5};
-  Float4 pk0 = {0.0f, 0.0f, 0.0f, 0.0f}, pk1 = pk0;
-  std::size_t m = m0;
-  // Lane 1: x[2m - 1], the left tap of output m.
-  Double2 odd_prev = {0.0, m + 4 <= m1 ? static_cast<double>(x[2 * m - 1]) : 0.0};
-  for (; m + 4 <= m1; m += 4) {
-    const Float4 lo = *reinterpret_cast<const Float4u*>(x + 2 * m);      // x[2m .. 2m+3]
-    const Float4 hi = *reinterpret_cast<const Float4u*>(x + 2 * m + 4);  // x[2m+4 .. 2m+7]
-    const Float4 alo = std::bit_cast<Float4>(std::bit_cast<UInt4>(lo) & abs_mask);
-    const Float4 ahi = std::bit_cast<Float4>(std::bit_cast<UInt4>(hi) & abs_mask);
-    pk0 = alo > pk0 ? alo : pk0;
-    pk1 = ahi > pk1 ? ahi : pk1;
-    const Double4 dlo = __builtin_convertvector(lo, Double4), dhi = __builtin_convertvector(hi, Double4);
-    const Double2 even01 = __builtin_shufflevector(dlo, dlo, 0, 2), odd01 = __builtin_shufflevector(dlo, dlo, 1, 3);
-    const Double2 even23 = __builtin_shufflevector(dhi, dhi, 0, 2), odd23 = __builtin_shufflevector(dhi, dhi, 1, 3);
-    const Double2 left01 = __builtin_shufflevector(odd_prev, odd01, 1, 2);  // x[2m-1], x[2m+1]
-    const Double2 left23 = __builtin_shufflevector(odd01, odd23, 1, 2);     // x[2m+3], x[2m+5]
-    odd_prev = odd23;
-    const Double2 v01 = quarter * (left01 + odd01) + half * even01;
-    const Double2 v23 = quarter * (left23 + odd23) + half * even23;
-    *reinterpret_cast<Double2u*>(y + m) = v01;
-    *reinterpret_cast<Double2u*>(y + m + 2) = v23;
-    if constexpr (kFloat) {
-      const Double4 v = __builtin_shufflevector(v01, v23, 0, 1, 2, 3);
-      *reinterpret_cast<Float4u*>(yf + m) = __builtin_convertvector(v, Float4);
-    }
-  }
-  pk0 = pk1 > pk0 ? pk1 : pk0;
-  float peak = std::max(std::max(pk0[0], pk0[1]), std::max(pk0[2], pk0[3]));
-  for (; m < m1; ++m) {
-    const double v = taps_121(x, 2 * m);
-    y[m] = v;
-    if constexpr (kFloat) yf[m] = static_cast<float>(v);
-    peak = std::max(peak, std::max(std::abs(x[2 * m]), std::abs(x[2 * m + 1])));
-  }
-  return static_cast<double>(peak);
-}
-
-template <bool kFloat, typename In>
-double decimate_interior_any(const In* x, double* y, float* yf, std::size_t m0, std::size_t m1) {
-  if constexpr (std::is_same_v<In, float>) return decimate_interior_f32<kFloat>(x, y, yf, m0, m1);
-  else return decimate_interior<kFloat, In>(x, y, yf, m0, m1);
-}
-
 template <typename In>
 double decimate_half_121_impl(std::span<const In> x, std::span<double> y, std::span<float> y_float) {
   const std::size_t n = x.size(), m_out = (n + 1) / 2;
@@ -245,8 +140,7 @@ double decimate_half_121_impl(std::span<const In> x, std::span<double> y, std::s
     peak = std::max(peak, std::max(std::abs(mid), std::abs(at(2 * m + 1))));
   };
   edge(0);
-  const double inner = y_float.empty() ? decimate_interior_any<false, In>(x.data(), y.data(), nullptr, 1, inner_end)
-                                       : decimate_interior_any<true, In>(x.data(), y.data(), y_float.data(), 1, inner_end);
+  const double inner = kernels::half_rate_121(x.data(), y.data(), y_float.empty() ? nullptr : y_float.data(), 1, inner_end);
   for (std::size_t m = inner_end; m < m_out; ++m) edge(m);
   return std::max(peak, inner);
 }
@@ -284,8 +178,9 @@ struct MorletCwt<Real>::Impl {
   // Band-limited mode with even L: the forward transform as a complex FFT of the L/2 pairs
   // z[m] = x[2m] + i x[2m+1] (into half_spec), unpacked only for bins 0..k_used (every bin a row up to
   // band_limit() reads): X[k] = E[k] + e^{-2 pi i k / L} O[k], E = (Z[k] + conj Z[L/2-k]) / 2,
-  // O = (Z[k] - conj Z[L/2-k]) / (2i). FFTW's estimated r2c plan of 1200 points (the analyzer's half
-  // rate) measured 1.7 us, the complex 600-point one 0.9 us.
+  // O = (Z[k] - conj Z[L/2-k]) / (2i). Used because FFTW's estimated r2c plans of some lengths (1200
+  // points, the analyzer's half rate) are much slower than the complex plan of half the length
+  // (docs/performance.md, "cwt").
   typename F::Complex* half_spec = nullptr;  // L/2
   std::vector<Real> unpack_twiddle;          // e^{-2 pi i k / L}, k = 0..k_used, interleaved re, im
   std::size_t k_used = 0;

@@ -38,8 +38,8 @@
 //
 // Band-limited forward transform: only the bins up to the top of band_limit_hz()'s band are read, so
 // for even L the real FFT is done as a complex FFT of L/2 sample pairs, unpacked for those bins only
-// (FFTW's estimated r2c plans of some lengths are slow: 1.7 us for 1200 points against 0.9 us for the
-// 600-point complex one).
+// (FFTW's estimated r2c plans of some lengths are slower than the complex plan of half the length;
+// timings in docs/performance.md, "cwt").
 //
 // Half-rate input (half_rate_121_input): the signal is y[m] = (x[2m-1] + 2 x[2m] + x[2m+1]) / 4 of an
 // x sampled at fs_x = 2 fs. Below fs/2 the DTFT of y is H(f) X(f) + H(fs - f) X(f - fs) with
@@ -194,7 +194,8 @@ class MorletCwt {
 /// y and, when y_float is not empty, in single precision to y_float (both of size >= (x.size() + 1) / 2).
 /// Only y[1 .. x.size() / 2 - 1] use in-range samples alone. Returns max |x| (the same pass reads every
 /// sample; the impact analyzer's peak check uses it). Float input is widened to double sample by sample
-/// (exactly), so both overloads give the same y for the same values.
+/// (exactly), so both overloads give the same y for the same values. The interior outputs are
+/// kernels::half_rate_121 (core/dsp/kernels/half_rate_121.hpp); this adds the two edges.
 double decimate_half_121(std::span<const double> x, std::span<double> y, std::span<float> y_float);
 double decimate_half_121(std::span<const float> x, std::span<double> y, std::span<float> y_float);
 
