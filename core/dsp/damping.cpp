@@ -245,9 +245,8 @@ EnvelopeWindow choose_window(const EnvelopeRow& row, const EnvelopeOptions& opti
     return win;
   }
   const std::size_t last = n - edge;  // exclusive
-  // First maximum of |W|^2 from the onset on. The running maximum is kept as a value: compared with
-  // the norm recomputed at the running peak, each column waited for the previous one's select and
-  // norm (~14 cycles per column; choose_window was 1.5 % of BM_AnalyzerMl).
+  // First maximum of |W|^2 from the onset on. The running maximum is kept as a value (recomputing the
+  // norm at the running peak would make each column wait for the previous one's select and norm).
   win.peak = onset;
   double peak_power = std::norm(row.w[onset]);
   for (std::size_t c = onset; c < last; ++c) {
