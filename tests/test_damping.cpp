@@ -9,6 +9,7 @@
 #include <cstring>
 #include <limits>
 #include <numbers>
+#include <stdexcept>
 #include <vector>
 
 #include "core/dsp/damping.hpp"
@@ -507,107 +508,55 @@ void expect_same_estimate(const DampingEstimate& a, const DampingEstimate& b) {
 
 }  // namespace
 
-// The workspace remembers the last fit's weights and sandwich meat (EnvelopeWorkspace): a fit on the
-// same row and window takes them over, and must give the bits of a fit in a fresh workspace; a fit
-// whose samples, noise power or kernel width differ must not take them over.
-TEST(EnvelopeWorkspace, RememberedWeightsGiveTheBitsOfAFreshFit) {
+// The line fits take their weights from the caller (EnvelopeFitWeights; nothing is kept between
+// calls): weights computed once and passed to both fits of a row (the analyzer's phase slope and ridge
+// LS when the stride is 1), and weights and workspace objects reused after fits on another row, must
+// give the bits of fits that compute their own; weights of another window or stride are refused.
+TEST(EnvelopeFitWeights, SharedAndReusedWeightsGiveTheBitsOfOwnWeights) {
   const double fs = 10000.0, f = 700.0;
   NoisyRow nr = noisy_row(fs, f, 0.01, 1e-3, 5);
   EnvelopeRow row{nr.w, nr.dt, f, 7.0, nr.noise_power};
   const EnvelopeWindow win = choose_window(row, EnvelopeOptions{});
   ASSERT_EQ(win.status, EstimateStatus::ok);
   ASSERT_GT(win.end - win.start, 50u);
+  // The same samples on a coarser column grid: ridge LS then uses every column (stride 1) like the
+  // phase slope, and one set of weights serves both.
+  EnvelopeRow coarse = row;
+  coarse.time_step_s = 7.0 / (2.0 * std::numbers::pi * f) / 12.0;  // 12 columns per kernel sd
+  ASSERT_EQ(ridge_ls_stride(coarse), kPhaseSlopeStride);
 
-  auto fresh_phase = [&](const EnvelopeRow& r, double& sd) { return phase_slope_frequency(r, win, sd); };
-  auto fresh_rls = [&](const EnvelopeRow& r) { return estimate_ridge_ls(r, win, f); };
-
-  // Phase slope, then ridge LS on the same row and window (the analyzer's order), then both again.
   EnvelopeWorkspace ws;
-  for (int pass = 0; pass < 2; ++pass) {
+  EnvelopeFitWeights fw;
+  {  // leave the objects filled from another row, noise and kernel width
+    EnvelopeRow other = row;
+    other.eta0 = 6.0;
+    EnvelopeWindow w2 = win;
+    w2.noise_power *= 2.0;
+    envelope_fit_weights(other, w2, kPhaseSlopeStride, fw, ws);
+    double sd = NAN;
+    phase_slope_frequency(other, w2, sd, fw, ws);
+  }
+  for (const EnvelopeRow* r : {&row, &coarse}) {
     double sd = NAN, sd_ref = NAN;
-    const double fd = phase_slope_frequency(row, win, sd, ws);
-    EXPECT_TRUE(ws.remembered.valid);
-    const double fd_ref = fresh_phase(row, sd_ref);
+    envelope_fit_weights(*r, win, kPhaseSlopeStride, fw, ws);
+    const double fd = phase_slope_frequency(*r, win, sd, fw, ws);
+    const double fd_ref = phase_slope_frequency(*r, win, sd_ref);
     EXPECT_TRUE(same_bits(fd, fd_ref)) << fd << " vs " << fd_ref;
     EXPECT_TRUE(same_bits(sd, sd_ref)) << sd << " vs " << sd_ref;
     EXPECT_TRUE(std::isfinite(sd) && sd > 0);
-    const DampingEstimate e = estimate_ridge_ls(row, win, f, ws);
+    const std::size_t stride = ridge_ls_stride(*r);
+    if (stride != kPhaseSlopeStride) {
+      EXPECT_THROW(estimate_ridge_ls(*r, win, f, fw, ws), std::invalid_argument);
+      envelope_fit_weights(*r, win, stride, fw, ws);
+    }
+    const DampingEstimate e = estimate_ridge_ls(*r, win, f, fw, ws);
     ASSERT_EQ(e.status, EstimateStatus::ok);
-    expect_same_estimate(e, fresh_rls(row));
+    expect_same_estimate(e, estimate_ridge_ls(*r, win, f));
   }
-
-  // Inputs that change the weights or the meat, each after a phase slope on the original row (the
-  // change must move zeta_sd, or the comparison would not show a stale meat).
-  const double zeta_sd_original = fresh_rls(row).zeta_sd;
-  auto after_phase_slope = [&](const EnvelopeRow& changed) {
-    double sd = NAN;
-    phase_slope_frequency(row, win, sd, ws);
-    const DampingEstimate e = estimate_ridge_ls(changed, win, f, ws);
-    expect_same_estimate(e, fresh_rls(changed));
-    EXPECT_GT(std::abs(e.zeta_sd / zeta_sd_original - 1.0), 1e-12);
-  };
-  {
-    SCOPED_TRACE("one sample inside the window changed in place");
-    const std::complex<double> keep = nr.w[win.start + 7];
-    nr.w[win.start + 7] *= 1.5;
-    after_phase_slope(row);
-    nr.w[win.start + 7] = keep;
-  }
-  {
-    SCOPED_TRACE("the last sample of the window changed in place");
-    const std::complex<double> keep = nr.w[win.end - 1];
-    nr.w[win.end - 1] *= 0.5;
-    after_phase_slope(row);
-    nr.w[win.end - 1] = keep;
-  }
-  {
-    SCOPED_TRACE("another noise power");
-    EnvelopeRow changed = row;
-    changed.noise_power *= 2.0;
-    EnvelopeWindow w2 = win;
-    w2.noise_power *= 2.0;
-    double sd = NAN;
-    phase_slope_frequency(row, win, sd, ws);
-    expect_same_estimate(estimate_ridge_ls(changed, w2, f, ws), estimate_ridge_ls(changed, w2, f));
-  }
-  {
-    SCOPED_TRACE("another kernel width (eta0)");
-    EnvelopeRow changed = row;
-    changed.eta0 = 6.0;
-    after_phase_slope(changed);
-  }
-  {
-    SCOPED_TRACE("another row frequency (kernel width and stride)");
-    EnvelopeRow changed = row;
-    changed.f_row_hz = 0.5 * f;
-    after_phase_slope(changed);
-  }
-}
-
-// The times t_i = c_i dt - c_0 dt, and so the meat, depend on where the window starts through their
-// rounding, and on the time step: a window shifted over a row of equal samples, or the same samples on
-// another time grid, must not take over the remembered meat.
-TEST(EnvelopeWorkspace, ShiftedWindowOrOtherTimeStepOverEqualSamplesIsRecomputed) {
-  const std::vector<std::complex<double>> w(3000, {0.3, 0.4});
-  const EnvelopeRow row{w, 0.1, 700.0, 7.0, 1e-4};
-  const EnvelopeWindow a{1000, 1040, 1000, 1e-4, EstimateStatus::ok};
-  const EnvelopeWindow b{2001, 2041, 2001, 1e-4, EstimateStatus::ok};
-  double sd_a = NAN, sd_b = NAN, sd_b_fresh = NAN;
-  EnvelopeWorkspace ws;
-  phase_slope_frequency(row, a, sd_a, ws);
-  phase_slope_frequency(row, b, sd_b, ws);
-  phase_slope_frequency(row, b, sd_b_fresh);
-  EXPECT_TRUE(same_bits(sd_b, sd_b_fresh)) << sd_b << " vs " << sd_b_fresh;
-  EXPECT_FALSE(same_bits(sd_a, sd_b_fresh)) << "the shift does not change the times' rounding";
-  // The same samples on another time grid.
-  EnvelopeRow finer = row;
-  finer.time_step_s = 0.05;
-  double sd_c = NAN, sd_c_fresh = NAN;
-  phase_slope_frequency(row, a, sd_a, ws);
-  phase_slope_frequency(finer, a, sd_c, ws);
-  phase_slope_frequency(finer, a, sd_c_fresh);
-  EXPECT_TRUE(same_bits(sd_c, sd_c_fresh)) << sd_c << " vs " << sd_c_fresh;
-  EXPECT_FALSE(same_bits(sd_a, sd_c_fresh));
+  // Weights of another window.
+  EnvelopeWindow shifted = win;
+  shifted.start += 1;
+  EXPECT_THROW(estimate_ridge_ls(coarse, shifted, f, fw, ws), std::invalid_argument);
 }
 
 namespace {

@@ -2,10 +2,12 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstring>
 #include <numbers>
-#include <type_traits>
+#include <stdexcept>
 #include <vector>
+
+#include "core/dsp/kernels/lag_correlation.hpp"
+#include "core/dsp/kernels/phase_advance.hpp"
 
 namespace ridgewatch::dsp {
 
@@ -23,58 +25,26 @@ double debiased_power(double p, double noise) {
 
 // Weighted straight-line fit y = a + b t with a sandwich covariance for errors whose correlation is
 // rho(dt) = exp(-dt^2 / (4 s^2)) and whose variances are 1 / w. Points are taken every `stride`
-// columns; the correlation makes denser sampling add almost nothing. The values and square-root
-// weights are evaluated once per point into the workspace, and rho, which depends only on the lag,
-// once per lag (the pair sum below visits each point ~reach times).
+// columns; the correlation makes denser sampling add almost nothing.
 //
 // The weights are those of both estimators, w = 2 (|W|^2 - noise)_+ / noise: the inverse variance of
 // ln|W| and of arg W, noise / (2 |W|^2). They, the bread sums and the meat depend on the row's samples
-// at the points, the noise, the column grid and the kernel width only; the values come from
+// at the points, the noise, the column grid and the kernel width only, not on the fitted values: the
+// caller computes them once (envelope_fit_weights) and passes them to every fit on that row and window
+// with that stride (the analyzer: the phase slope and the ridge LS on one row). The values come from
 // fill_values(y, power, count), which writes y[i] for the point i from the row (power[i]: its debiased
-// |W|^2). The workspace keeps the last fit's weights, sums and slope uncertainty with those inputs
-// (EnvelopeWorkspace); a fit whose inputs all equal them bit for bit takes them over instead of
-// recomputing them, which gives the same bits. In the analyzer the ridge-LS fit runs on the phase
-// slope's row and window unless f_d moves the row (ridgewatch analyze rw60.wav: it took them over in
-// all 1500 impacts; estimate_ridge_ls 19.9M -> 5.7M instructions, the meat was most of it).
-using Pair = double __attribute__((vector_size(2 * sizeof(double))));
-
-template <typename T>
-T splat(double x) {
-  if constexpr (std::is_same_v<T, Pair>) return Pair{x, x};
-  else return x;
-}
-
+// |W|^2).
 struct LineFit {
   double intercept = NAN, slope = NAN, slope_sd = NAN;
   std::size_t points = 0;
 };
 
-bool same_bits(double a, double b) { return std::memcmp(&a, &b, sizeof a) == 0; }
-
-// Whether the workspace holds the weights and meat of a fit on these points and inputs.
-bool remembered_fit(const EnvelopeRow& row, std::size_t begin, std::size_t count, std::size_t stride,
-                    double noise, double kernel_sd, const EnvelopeWorkspace& ws) {
-  const EnvelopeWorkspace::Remembered& m = ws.remembered;
-  if (!m.valid || m.begin != begin || m.stride != stride || ws.samples.size() != count ||
-      !same_bits(m.time_step_s, row.time_step_s) || !same_bits(m.kernel_sd_s, kernel_sd) ||
-      !same_bits(m.noise_power, noise))
-    return false;
-  const std::complex<double>* w = row.w.data() + begin;
-  for (std::size_t i = 0; i < count; ++i)
-    if (std::memcmp(&w[i * stride], &ws.samples[i], sizeof(std::complex<double>)) != 0) return false;
-  return true;
-}
-
-Pair load_pair(const double* p) {
-  Pair x;
-  std::memcpy(&x, p, sizeof x);
-  return x;
-}
-
-// Sandwich standard uncertainty of the slope from the weights and times in the workspace (s0, s1 and
+// Sandwich standard uncertainty of the slope from the weights and times in `fw` (s0, s1 and
 // det = s0 s2 - s1^2 > 0: the bread).
-double sandwich_slope_sd(std::size_t count, std::size_t stride, double dt, double kernel_sd, double s0,
-                         double s1, double det, EnvelopeWorkspace& ws) {
+double sandwich_slope_sd(const EnvelopeFitWeights& fw, double dt, double kernel_sd, double det,
+                         EnvelopeWorkspace& ws) {
+  const std::size_t count = fw.count, stride = fw.stride;
+  const double s0 = fw.s0, s1 = fw.s1;
   // Meat of the sandwich: sum_ij x_i x_j^T sqrt(w_i w_j) rho_ij, over pairs within 6 correlation
   // lengths (rho < 1e-15 beyond).
   const double corr_len = 2.0 * kernel_sd;
@@ -99,171 +69,47 @@ double sandwich_slope_sd(std::size_t count, std::size_t stride, double dt, doubl
   // The slope's variance is row 2 of the bread times the meat times bread column 2: with the bread
   // (X^T W X)^-1 = [s2 -s1; -s1 s0] / det, it is sum_ij rho_ij z_i z_j / det^2 for
   // z_i = sqrt(w_i) (s0 t_i - s1), the slope's influence of point i. Lag by lag, the pairs (i, i + k)
-  // contribute rho_k sum_i z_i z_{i+k}: one correlation per lag. The meat's three correlations with
-  // [1, t, t^2] (sum u_i u_{i+k}, sum (v_i u_{i+k} + u_i v_{i+k}), sum v_i v_{i+k}, v = u t) took 4
-  // multiplications and 4 additions per pair where this takes 1 and 1 (phase slope + ridge LS of one
-  // 40-point window: 842 -> 673 ns), and their combination with the bread cancelled: against a long
-  // double evaluation this is within 7e-16, they were within 1.1e-14 (tests/test_damping.cpp).
-  // SSE2 pairs (GCC/Clang vector extension; the compiler does not vectorise these reductions itself),
-  // lane 0 summing the even i, lane 1 the odd i.
-  const double* u = ws.root_weight.data();
-  const double* tt = ws.time.data();
-  const double* rho = ws.correlation.data();
+  // contribute rho_k sum_i z_i z_{i+k}: one correlation per lag (kernels::lag_correlation_sum). The
+  // meat's three correlations with [1, t, t^2] and their combination with the bread cancelled:
+  // against a long double evaluation this is within 7e-16, they were within 1.1e-14
+  // (tests/test_damping.cpp).
+  const double* u = fw.root_weight.data();
+  const double* tt = fw.time.data();
   ws.value.resize(count);  // scratch here: the values are filled after the weights
   double* z = ws.value.data();
   for (std::size_t i = 0; i < count; ++i) z[i] = u[i] * (s0 * tt[i] - s1);
-  double sum = 0;
-  std::size_t k = 0;
-  // Four lags per pass: four independent chains, the loads of z_i shared.
-  for (; k + 4 <= reach + 1; k += 4) {
-    const std::size_t len = count - k;  // points of lag k; lag k + j has len - j
-    Pair acc[4] = {{0, 0}, {0, 0}, {0, 0}, {0, 0}};
-    std::size_t i = 0;
-    for (; i + 5 <= len; i += 2) {  // i + 2 <= len - 3: every lag has the pair
-      const Pair zi = load_pair(z + i);
-      for (std::size_t j = 0; j < 4; ++j) acc[j] += zi * load_pair(z + k + j + i);
-    }
-    for (std::size_t j = 0; j < 4; ++j) {  // each lag's last pair, its odd last point, into the sum
-      std::size_t ij = i;
-      for (; ij + 2 <= len - j; ij += 2) acc[j] += load_pair(z + ij) * load_pair(z + k + j + ij);
-      double sj = acc[j][0] + acc[j][1];
-      if (ij < len - j) sj += z[ij] * z[ij + k + j];
-      sum += rho[k + j] * sj;
-    }
-  }
-  for (; k <= reach; ++k) {
-    const std::size_t len = count - k;
-    Pair a = {0, 0};
-    std::size_t i = 0;
-    for (; i + 2 <= len; i += 2) a += load_pair(z + i) * load_pair(z + k + i);
-    double sk = a[0] + a[1];
-    if (i < len) sk += z[i] * z[i + k];
-    sum += rho[k] * sk;
-  }
+  const double sum = kernels::lag_correlation_sum(z, count, ws.correlation.data(), reach);
   const double var = sum / det / det;  // (det^2 would overflow for weights beyond ~1e75)
   return std::sqrt(std::max(var, 0.0));
 }
 
-// Weights, times, bread sums and the sandwich standard uncertainty of the slope into ws.remembered.
-void fit_weights(const EnvelopeRow& row, std::size_t begin, std::size_t count, std::size_t stride,
-                 double noise, double kernel_sd, EnvelopeWorkspace& ws) {
-  const double dt = row.time_step_s;
-  EnvelopeWorkspace::Remembered& m = ws.remembered;
-  m.valid = false;
-  ws.samples.resize(count);
-  ws.power.resize(count);
-  ws.weight.resize(count);
-  ws.root_weight.resize(count);
-  ws.time.resize(count);
-  double s0 = 0, s1 = 0, s2 = 0;
-  const double t_ref = static_cast<double>(begin) * dt;  // centre times for conditioning
-  for (std::size_t i = 0; i < count; ++i) {
-    const std::size_t c = begin + i * stride;
-    const double t = static_cast<double>(c) * dt - t_ref;
-    ws.samples[i] = row.w[c];
-    const double p = debiased_power(std::norm(row.w[c]), noise);
-    const double w = 2.0 * p / noise;
-    ws.power[i] = p;
-    ws.weight[i] = w;
-    ws.root_weight[i] = std::sqrt(w);
-    ws.time[i] = t;
-    s0 += w;
-    s1 += w * t;
-    s2 += w * t * t;
-  }
-  m.s0 = s0;
-  m.s1 = s1;
-  m.s2 = s2;
-  m.slope_sd = NAN;
-  const double det = s0 * s2 - s1 * s1;
-  if (count >= 3 && det > 0) m.slope_sd = sandwich_slope_sd(count, stride, dt, kernel_sd, s0, s1, det, ws);
-  m.begin = begin;
-  m.stride = stride;
-  m.time_step_s = dt;
-  m.kernel_sd_s = kernel_sd;
-  m.noise_power = noise;
-  m.valid = true;
-}
-
 template <typename ValueFn>
 LineFit weighted_line_fit(const EnvelopeRow& row, std::size_t begin, std::size_t end, std::size_t stride,
-                          double noise, double kernel_sd, ValueFn fill_values, EnvelopeWorkspace& ws) {
+                          const EnvelopeFitWeights& fw, ValueFn fill_values, EnvelopeWorkspace& ws) {
   LineFit fit;
   if (end <= begin) return fit;
   const std::size_t count = (end - begin + stride - 1) / stride;
-  if (!remembered_fit(row, begin, count, stride, noise, kernel_sd, ws))
-    fit_weights(row, begin, count, stride, noise, kernel_sd, ws);
-  const EnvelopeWorkspace::Remembered& m = ws.remembered;
+  if (fw.begin != begin || fw.stride != stride || fw.count != count)
+    throw std::invalid_argument("envelope line fit: the weights were computed for another window or stride");
   ws.value.resize(count);
-  fill_values(ws.value.data(), ws.power.data(), count);
+  fill_values(ws.value.data(), fw.power.data(), count);
   const double* y = ws.value.data();
-  const double* wt = ws.weight.data();
-  const double* tt = ws.time.data();
+  const double* wt = fw.weight.data();
+  const double* tt = fw.time.data();
   double sy = 0, sty = 0;
   for (std::size_t i = 0; i < count; ++i) {
     sy += wt[i] * y[i];
     sty += wt[i] * tt[i] * y[i];
   }
   fit.points = count;
-  const double s0 = m.s0, s1 = m.s1, s2 = m.s2;
+  const double s0 = fw.s0, s1 = fw.s1, s2 = fw.s2;
   const double det = s0 * s2 - s1 * s1;
   if (fit.points < 3 || !(det > 0)) return fit;
   const double t_ref = static_cast<double>(begin) * row.time_step_s;
   fit.slope = (s0 * sty - s1 * sy) / det;
   fit.intercept = (s2 * sy - s1 * sty) / det - fit.slope * t_ref;
-  fit.slope_sd = m.slope_sd;
+  fit.slope_sd = fw.slope_sd;
   return fit;
-}
-
-// phase_angle's series, atan t for |t| <= 1/8, on a double or lane by lane on a Pair (the same
-// operations, so the same bits).
-template <typename T>
-T atan_series(T t) {
-  const T s = t * t;
-  T p = splat<T>(1.0 / 19.0);
-  p = splat<T>(1.0 / 17.0) - s * p;
-  p = splat<T>(1.0 / 15.0) - s * p;
-  p = splat<T>(1.0 / 13.0) - s * p;
-  p = splat<T>(1.0 / 11.0) - s * p;
-  p = splat<T>(1.0 / 9.0) - s * p;
-  p = splat<T>(1.0 / 7.0) - s * p;
-  p = splat<T>(1.0 / 5.0) - s * p;
-  p = splat<T>(1.0 / 3.0) - s * p;
-  p = splat<T>(1.0) - s * p;
-  return t * p;
-}
-
-// The phase advances d_i = phase_angle(w_i conj(w_{i-1}) derotate) + advance of the columns i and
-// i + 1 (w points at w_i) into d[0] and d[1], the two columns in the lanes of Pairs: the complex
-// products formed as std::complex forms them (x.r y.r - x.i y.i, x.r y.i + x.i y.r; the library's
-// special-value handling only acts on NaN results) and phase_angle's series, when both products lie
-// in its range; otherwise (or for a NaN) the scalar expression. The same bits as the scalar
-// expression either way: the phase-slope fit's advances were a chain of ~100 cycles per column
-// (division and ten Horner steps), now two columns per chain.
-void phase_advances_pair(const std::complex<double>* w, std::complex<double> derotate, double advance,
-                         double* d) {
-  const Pair a = {w[0].real(), w[1].real()}, b = {w[0].imag(), w[1].imag()};
-  const Pair c = {w[-1].real(), w[0].real()}, nd = {-w[-1].imag(), -w[0].imag()};  // conj(w_{i-1})
-  const Pair re1 = a * c - b * nd, im1 = a * nd + b * c;
-  const Pair dr = splat<Pair>(derotate.real()), di = splat<Pair>(derotate.imag());
-  const Pair re = re1 * dr - im1 * di, im = re1 * di + im1 * dr;
-  // phase_angle's test re > 0 && |im| <= re / 8, false for NaN like it.
-  const Pair q = splat<Pair>(0.125) * re;
-  const auto in_range = (re > splat<Pair>(0.0)) & (im <= q) & (-im <= q);
-  if (in_range[0] && in_range[1]) {
-    const Pair p = atan_series(im / re) + splat<Pair>(advance);
-    d[0] = p[0];
-    d[1] = p[1];
-    return;
-  }
-  for (std::size_t j = 0; j < 2; ++j)
-    d[j] = phase_angle(w[j] * std::conj(w[static_cast<std::ptrdiff_t>(j) - 1]) * derotate) + advance;
-}
-
-std::size_t fit_stride(const EnvelopeRow& row) {
-  // About 8 points per kernel width: the samples are correlated over ~2 s anyway.
-  const double per = kernel_sd_s(row) / (8.0 * row.time_step_s);
-  return std::max<std::size_t>(1, static_cast<std::size_t>(per));
 }
 
 DampingEstimate base_estimate(DampingMethod method, const EnvelopeRow& row, const EnvelopeWindow& win) {
@@ -319,13 +165,56 @@ std::string_view to_string(EstimateStatus status) {
 }
 
 void EnvelopeWorkspace::reserve(std::size_t columns, std::size_t reach) {
+  value.reserve(columns);
+  correlation.reserve(std::min(columns, reach) + 1);
+}
+
+void EnvelopeFitWeights::reserve(std::size_t columns) {
   power.reserve(columns);
   weight.reserve(columns);
-  samples.reserve(columns);
-  value.reserve(columns);
   root_weight.reserve(columns);
   time.reserve(columns);
-  correlation.reserve(std::min(columns, reach) + 1);
+}
+
+std::size_t ridge_ls_stride(const EnvelopeRow& row) {
+  // About 8 points per kernel width: the samples are correlated over ~2 s anyway.
+  const double per = kernel_sd_s(row) / (8.0 * row.time_step_s);
+  return std::max<std::size_t>(1, static_cast<std::size_t>(per));
+}
+
+void envelope_fit_weights(const EnvelopeRow& row, const EnvelopeWindow& win, std::size_t stride,
+                          EnvelopeFitWeights& fw, EnvelopeWorkspace& ws) {
+  const std::size_t begin = win.start;
+  const std::size_t count = win.end > begin ? (win.end - begin + stride - 1) / stride : 0;
+  const double noise = win.noise_power, dt = row.time_step_s;
+  fw.begin = begin;
+  fw.stride = stride;
+  fw.count = count;
+  fw.power.resize(count);
+  fw.weight.resize(count);
+  fw.root_weight.resize(count);
+  fw.time.resize(count);
+  double s0 = 0, s1 = 0, s2 = 0;
+  const double t_ref = static_cast<double>(begin) * dt;  // centre times for conditioning
+  for (std::size_t i = 0; i < count; ++i) {
+    const std::size_t c = begin + i * stride;
+    const double t = static_cast<double>(c) * dt - t_ref;
+    const double p = debiased_power(std::norm(row.w[c]), noise);
+    const double w = 2.0 * p / noise;
+    fw.power[i] = p;
+    fw.weight[i] = w;
+    fw.root_weight[i] = std::sqrt(w);
+    fw.time[i] = t;
+    s0 += w;
+    s1 += w * t;
+    s2 += w * t * t;
+  }
+  fw.s0 = s0;
+  fw.s1 = s1;
+  fw.s2 = s2;
+  fw.slope_sd = NAN;
+  const double det = s0 * s2 - s1 * s1;
+  if (count >= 3 && det > 0) fw.slope_sd = sandwich_slope_sd(fw, dt, kernel_sd_s(row), det, ws);
 }
 
 double estimate_row_noise_power(std::span<const std::complex<double>> w) {
@@ -356,9 +245,8 @@ EnvelopeWindow choose_window(const EnvelopeRow& row, const EnvelopeOptions& opti
     return win;
   }
   const std::size_t last = n - edge;  // exclusive
-  // First maximum of |W|^2 from the onset on. The running maximum is kept as a value: compared with
-  // the norm recomputed at the running peak, each column waited for the previous one's select and
-  // norm (~14 cycles per column; choose_window was 1.5 % of BM_AnalyzerMl).
+  // First maximum of |W|^2 from the onset on. The running maximum is kept as a value (recomputing the
+  // norm at the running peak would make each column wait for the previous one's select and norm).
   win.peak = onset;
   double peak_power = std::norm(row.w[onset]);
   for (std::size_t c = onset; c < last; ++c) {
@@ -386,40 +274,30 @@ EnvelopeWindow choose_window(const EnvelopeRow& row, const EnvelopeOptions& opti
   return win;
 }
 
-double phase_angle(std::complex<double> z) {
-  const double re = z.real(), im = z.imag();
-  // |im| <= re / 8: |arg z| <= 0.1244. atan t = t sum_j (-t^2)^j / (2j + 1); with t^2 <= 1/64 the
-  // first omitted term (j = 9) is below 64^-9 / 19 = 3e-18 of the sum, so the series (Horner in t^2)
-  // is as accurate as the division im / re that forms t.
-  if (re > 0.0 && std::abs(im) <= 0.125 * re) return atan_series(im / re);
-  return std::arg(z);
-}
+double phase_angle(std::complex<double> z) { return kernels::phase_angle(z); }
 
 double phase_slope_frequency(const EnvelopeRow& row, const EnvelopeWindow& win, double& sd_hz) {
   EnvelopeWorkspace ws;
-  return phase_slope_frequency(row, win, sd_hz, ws);
+  EnvelopeFitWeights fw;
+  if (win.end > win.start + 2) envelope_fit_weights(row, win, kPhaseSlopeStride, fw, ws);
+  return phase_slope_frequency(row, win, sd_hz, fw, ws);
 }
 
 double phase_slope_frequency(const EnvelopeRow& row, const EnvelopeWindow& win, double& sd_hz,
-                             EnvelopeWorkspace& ws) {
+                             const EnvelopeFitWeights& weights, EnvelopeWorkspace& ws) {
   sd_hz = NAN;
   if (win.end <= win.start + 2) return NAN;
-  const std::size_t stride = 1;  // unwrapping needs every column (phase advance < pi per column)
   // Unwrapped phase relative to the window start, accumulated column by column.
   const double advance = kTwoPi * row.phase_reference_hz * row.time_step_s;  // 0 unless decimated
   const std::complex<double> derotate = std::polar(1.0, -advance);
-  const double noise = win.noise_power;
   const LineFit fit = weighted_line_fit(
-      row, win.start, win.end, stride, noise, kernel_sd_s(row),
+      row, win.start, win.end, kPhaseSlopeStride, weights,
       [&](double* y, const double*, std::size_t count) {
-        // The advances into y[1..count), two columns at a time, then their running sum.
-        const std::complex<double>* w = row.w.data() + win.start;
-        std::size_t i = 1;
-        for (; i + 2 <= count; i += 2) phase_advances_pair(w + i, derotate, advance, y + i);
-        if (i < count) y[i] = phase_angle(w[i] * std::conj(w[i - 1]) * derotate) + advance;
+        // The advances into y[1..count), then their running sum.
+        kernels::phase_advances(row.w.data() + win.start, count, derotate, advance, y);
         double acc = 0.0;
         y[0] = acc;
-        for (i = 1; i < count; ++i) {
+        for (std::size_t i = 1; i < count; ++i) {
           acc += y[i];
           y[i] = acc;
         }
@@ -431,20 +309,21 @@ double phase_slope_frequency(const EnvelopeRow& row, const EnvelopeWindow& win, 
 
 DampingEstimate estimate_ridge_ls(const EnvelopeRow& row, const EnvelopeWindow& win, double f_d_hz) {
   EnvelopeWorkspace ws;
-  return estimate_ridge_ls(row, win, f_d_hz, ws);
+  EnvelopeFitWeights fw;
+  if (win.end > win.start + 2) envelope_fit_weights(row, win, ridge_ls_stride(row), fw, ws);
+  return estimate_ridge_ls(row, win, f_d_hz, fw, ws);
 }
 
 DampingEstimate estimate_ridge_ls(const EnvelopeRow& row, const EnvelopeWindow& win, double f_d_hz,
-                                  EnvelopeWorkspace& ws) {
+                                  const EnvelopeFitWeights& weights, EnvelopeWorkspace& ws) {
   DampingEstimate e = base_estimate(DampingMethod::ridge_ls, row, win);
   e.f_hz = f_d_hz;
   if (win.end <= win.start + 2) {
     if (e.status == EstimateStatus::ok) e.status = EstimateStatus::too_short;
     return e;
   }
-  const double noise = win.noise_power;
   const LineFit fit = weighted_line_fit(
-      row, win.start, win.end, fit_stride(row), noise, kernel_sd_s(row),
+      row, win.start, win.end, ridge_ls_stride(row), weights,
       [](double* y, const double* power, std::size_t count) {
         for (std::size_t i = 0; i < count; ++i) y[i] = 0.5 * std::log(power[i]);
       },

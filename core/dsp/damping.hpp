@@ -104,30 +104,37 @@ struct EnvelopeWindow {
   EstimateStatus status = EstimateStatus::ok;
 };
 
-/// Scratch arrays of the line fits below. The estimators resize them to the window length (plus the
-/// correlation reach of the sandwich covariance); callers on a real-time path reserve() them once, after
-/// which the estimators allocate nothing.
-///
-/// The workspace also remembers the last fit's weights and sandwich meat: they depend only on the row's
-/// samples at the fit's points, the noise power, the column grid and the kernel width, not on the
-/// fitted values, so phase_slope_frequency and estimate_ridge_ls on the same row and window (one impact
-/// in the analyzer) share them. A fit reuses them only when all of those inputs are equal bit for bit
-/// (the samples are kept in `samples` and compared), so the results do not depend on what the
-/// workspace saw before. The members are the estimators' own: callers only reserve().
+/// Scratch arrays of the line fits below (the fitted values and the lag correlations of the sandwich
+/// covariance). The estimators resize them; callers on a real-time path reserve() them once, after
+/// which the estimators allocate nothing. Nothing in it carries over from one call to the next.
 struct EnvelopeWorkspace {
-  std::vector<double> value, root_weight, time, correlation;
-  std::vector<double> power, weight;           ///< debiased |W|^2 and weight per point
-  std::vector<std::complex<double>> samples;   ///< W at the points of the remembered fit
-  struct Remembered {
-    bool valid = false;
-    std::size_t begin = 0, stride = 0;
-    double time_step_s = 0, kernel_sd_s = 0, noise_power = 0;
-    double s0 = 0, s1 = 0, s2 = 0;  ///< weight sums sum w, sum w t, sum w t^2
-    double slope_sd = NAN;          ///< sandwich standard uncertainty of the slope
-  } remembered;
+  std::vector<double> value, correlation;
   /// Reserves room for windows of up to `columns` columns and correlation reaches of up to `reach`.
   void reserve(std::size_t columns, std::size_t reach);
 };
+
+/// The weights of the envelope line fits (phase slope, ridge LS) on one row's window, at every
+/// `stride`-th column from window.start: w = 2 (|W|^2 - noise)_+ / noise (the inverse variance of
+/// ln|W| and of arg W), with the debiased |W|^2, the times from the window start, the bread sums and
+/// the sandwich standard uncertainty of the slope. They depend on the row's samples, the window's
+/// noise power, the column grid and the kernel width, not on the fitted values: a caller whose two fits
+/// use the same row, window and stride computes them once and passes them to both.
+struct EnvelopeFitWeights {
+  std::size_t begin = 0, stride = 1, count = 0;  ///< the points: begin + i stride, i < count (columns)
+  std::vector<double> power, weight, root_weight, time;  ///< per point (time in s from begin)
+  double s0 = 0, s1 = 0, s2 = 0;  ///< weight sums sum w, sum w t, sum w t^2
+  double slope_sd = NAN;          ///< sandwich standard uncertainty of the slope (NaN: < 3 points)
+  /// Reserves room for windows of up to `columns` columns (no allocation in envelope_fit_weights).
+  void reserve(std::size_t columns);
+};
+
+/// The phase slope's stride: unwrapping needs every column (phase advance < pi per column).
+inline constexpr std::size_t kPhaseSlopeStride = 1;
+/// The ridge LS's stride: about 8 points per kernel width (the samples are correlated over ~2 widths).
+std::size_t ridge_ls_stride(const EnvelopeRow& row);
+/// The weights of a fit on `window` of `row` with `stride` into `weights` (ws: scratch).
+void envelope_fit_weights(const EnvelopeRow& row, const EnvelopeWindow& window, std::size_t stride,
+                          EnvelopeFitWeights& weights, EnvelopeWorkspace& ws);
 
 /// Noise power of a row estimated from its lower quartile: where the row holds only noise,
 /// |W|^2 is exponential with mean P, whose 25 % quantile is P ln(4/3).
@@ -140,15 +147,18 @@ EnvelopeWindow choose_window(const EnvelopeRow& row, const EnvelopeOptions& opti
 
 /// arg z in (-pi, pi], as std::arg: near the positive real axis (|arg z| <= 0.124, where the
 /// derotated column-to-column phase advances of a row near the mode lie) by a series that is as
-/// accurate as atan2 and several times cheaper; elsewhere std::arg. Used by phase_slope_frequency.
+/// accurate as atan2 and cheaper; elsewhere std::arg (kernels::phase_angle). Used by
+/// phase_slope_frequency.
 double phase_angle(std::complex<double> z);
 
 /// Damped frequency from the slope of the unwrapped phase of W along the row (weights |W|^2).
 /// Unbiased: past the edges, arg W(t) = omega_d t + const for any row near the mode.
 /// Returns NaN when the window has fewer than 3 points. sd_hz receives the standard uncertainty.
 double phase_slope_frequency(const EnvelopeRow& row, const EnvelopeWindow& window, double& sd_hz);
+/// With weights from envelope_fit_weights(row, window, kPhaseSlopeStride, ...) (std::invalid_argument
+/// when they are for another window or stride); allocates nothing once `workspace` is reserved.
 double phase_slope_frequency(const EnvelopeRow& row, const EnvelopeWindow& window, double& sd_hz,
-                             EnvelopeWorkspace& workspace);
+                             const EnvelopeFitWeights& weights, EnvelopeWorkspace& workspace);
 
 /// Eq. (17)-(19): the logarithmic decrement between the window start and the first instant m whole
 /// periods later where the envelope has fallen by about e^1.1 (the spacing that minimises the
@@ -160,7 +170,8 @@ DampingEstimate estimate_two_point(const EnvelopeRow& row, const EnvelopeWindow&
 /// the correlation of neighbouring envelope samples (the row's noise has a Gaussian autocorrelation
 /// exp(-dt^2 / (4 s^2))) with a sandwich covariance.
 DampingEstimate estimate_ridge_ls(const EnvelopeRow& row, const EnvelopeWindow& window, double f_d_hz);
+/// With weights from envelope_fit_weights(row, window, ridge_ls_stride(row), ...) (as above).
 DampingEstimate estimate_ridge_ls(const EnvelopeRow& row, const EnvelopeWindow& window, double f_d_hz,
-                                  EnvelopeWorkspace& workspace);
+                                  const EnvelopeFitWeights& weights, EnvelopeWorkspace& workspace);
 
 }  // namespace ridgewatch::dsp

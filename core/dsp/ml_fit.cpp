@@ -14,6 +14,8 @@
 #include <unsupported/Eigen/NonLinearOptimization>
 
 #include "core/dsp/fftw_planner.hpp"
+#include "core/dsp/kernels/mode_bin.hpp"
+#include "core/dsp/kernels/simd.hpp"
 
 namespace ridgewatch::dsp {
 
@@ -22,41 +24,15 @@ namespace {
 using cd = std::complex<double>;
 constexpr double kTwoPi = 2.0 * std::numbers::pi;
 
-// Complex product and reciprocal without the C99 Annex G special cases of operator* and operator/
-// (a NaN test and possible call to __muldc3 per product, an unconditional call to __divdc3 per
-// quotient; measured: a quarter of the model's instructions). The operands here are finite and the
-// denominators are 1 - z e^{-i theta} with |z| < 1, never zero.
-inline cd mul(cd a, cd b) {
-  return {a.real() * b.real() - a.imag() * b.imag(), a.real() * b.imag() + a.imag() * b.real()};
-}
-inline cd inv(cd b) { return std::conj(b) / std::norm(b); }
+using kernels::half_sum;
+using kernels::inv;
+using kernels::mul;
+using kernels::smul;
+using kernels::Split;
+using simd::f64x2;
 
-// SSE2 pairs (GCC/Clang vector extension).
-using Pair = double __attribute__((vector_size(2 * sizeof(double))));
-
-// A mode's two terms per bin, for z and for conj(z), side by side: lane 0 holds what the scalar
-// complex arithmetic above computes for the z term, lane 1 the same for the conj(z) term, by the same
-// operations in the same order (conjugating an operand negates its imaginary part exactly, and
-// x - y rounds as x + (-y)), so every value is bit for bit the scalar one, at half the instructions
-// and divisions.
-struct Split {
-  Pair re, im;
-};
-inline Split smul(const Split& a, const Split& b) {  // mul() per lane
-  return {a.re * b.re - a.im * b.im, a.re * b.im + a.im * b.re};
-}
-inline Split with_conj(cd a) { return {Pair{a.real(), a.real()}, Pair{a.imag(), -a.imag()}}; }  // (a, conj a)
-inline Split both(cd a) { return {Pair{a.real(), a.real()}, Pair{a.imag(), a.imag()}}; }        // (a, a)
-inline cd half_sum(const Split& a) {  // 0.5 * (lane 0 + lane 1)
-  return {0.5 * (a.re[0] + a.re[1]), 0.5 * (a.im[0] + a.im[1])};
-}
-// Stores the complex number (v[0], v[1]) with one 16-byte store: a later 16-byte load of it is
-// forwarded from the store (two 8-byte stores cannot forward to one 16-byte load: a stall of ~15
-// cycles, measured as the normal equations' hottest instruction).
-inline void store_pair(cd* to, Pair v) { std::memcpy(static_cast<void*>(to), &v, sizeof v); }
-inline void store_half_sum(cd* to, const Split& a) {  // half_sum(a) into *to
-  store_pair(to, Pair{0.5, 0.5} * (Pair{a.re[0], a.im[0]} + Pair{a.re[1], a.im[1]}));
-}
+// Stores the complex number (v[0], v[1]) with one 16-byte store (kernels::store_complex).
+inline void store_pair(cd* to, f64x2 v) { kernels::store_complex(to, v); }
 
 // Parameter layout per mode: [f_hz, ln zeta, Re C, Im C]; then residual terms [Re b, Im b] each.
 constexpr int kPerMode = 4;
@@ -77,12 +53,10 @@ struct Problem {
   int params() const { return kPerMode * modes + 2 * residual_terms; }
   int values() const { return 2 * static_cast<int>(data.size()); }
 
-  struct ModeState {
-    cd z, zn, dz_df, dz_du;
-    cd c;
-    cd one_minus_zn, zn1, c_dz_df, c_dz_du;  // 1 - z^N, z^(N-1), C dz/df, C dz/du
-    // (a, conj a) of z, 1 - z^N, C, N z^(N-1), C dz/df, C dz/du for the per-bin Split arithmetic
-    Split z2, one_minus_zn2, c2, n_zn1_2, c_dz_df2, c_dz_du2;
+  // The kernel's terms (z, 1 - z^N, z^(N-1), C, C dz/df, C dz/du and their lane pairs) and the rest
+  // of a mode's state.
+  struct ModeState : kernels::ModeBinState {
+    cd zn, dz_df, dz_du;
     // The f and ln zeta the members above except the C terms were computed for (valid: at all).
     double key_f = 0.0, key_ln_zeta = 0.0;
     bool valid = false;
@@ -111,9 +85,9 @@ struct Problem {
       m.dz_du = m.z * cd(-dsigma_du, 0.0) / fs;
       m.one_minus_zn = 1.0 - m.zn;
       m.zn1 = std::exp((n_samples - 1.0) * exponent);
-      m.z2 = with_conj(m.z);
-      m.one_minus_zn2 = with_conj(m.one_minus_zn);
-      m.n_zn1_2 = with_conj(n_samples * m.zn1);  // n_samples * conj(zn1) = conj(n_samples * zn1) exactly
+      m.z2 = kernels::with_conj(m.z);
+      m.one_minus_zn2 = kernels::with_conj(m.one_minus_zn);
+      m.n_zn1_2 = kernels::with_conj(n_samples * m.zn1);  // n_samples * conj(zn1) = conj(n_samples * zn1) exactly
       m.key_f = f;
       m.key_ln_zeta = ln_zeta;
       m.valid = true;
@@ -121,52 +95,9 @@ struct Problem {
     m.c = cd(x[kPerMode * j + 2], x[kPerMode * j + 3]);
     m.c_dz_df = m.c * m.dz_df;
     m.c_dz_du = m.c * m.dz_du;
-    m.c2 = with_conj(m.c);
-    m.c_dz_df2 = with_conj(m.c_dz_df);
-    m.c_dz_du2 = with_conj(m.c_dz_du);
-  }
-
-  // Mode m's term of X_model_k, w = e^{-2 pi i k / N}, and when col != nullptr its four Jacobian
-  // entries (complex: d/df, d/d ln zeta, d/d Re C, d/d Im C):
-  //   G(z, k) = (1 - z^N) / d,  d = 1 - z w_k,  G'(z) = (-N z^(N-1) d + (1 - z^N) w_k) / d^2
-  //           = (G w_k - N z^(N-1)) / d,
-  // so each mode costs two complex reciprocals per bin. The z term (g1 = G(z, k), ...) and the
-  // conj(z) term (g2 = G(conj z, k), ...) go side by side in the lanes of Split values.
-  static cd mode_bin(const ModeState& m, const Split& wk, cd* col) {
-    // inv = conj(d) / |d|^2, d = 1 - z w_k (real part 1 - re, which rounds as (-re) + 1)
-    const Split zw = smul(m.z2, wk);
-    const Pair d_re = Pair{1.0, 1.0} - zw.re, d_im = -zw.im;
-    const Pair nrm = d_re * d_re + d_im * d_im;
-    const Split inv12{d_re / nrm, -d_im / nrm};
-    const Split g12 = smul(m.one_minus_zn2, inv12);
-    const cd out = half_sum(smul(m.c2, g12));  // 0.5 (C g1 + conj(C) g2)
-    if (!col) return out;
-    const Split gw = smul(g12, wk);
-    const Split gp12 = smul({gw.re - m.n_zn1_2.re, gw.im - m.n_zn1_2.im}, inv12);  // (g w_k - N z^(N-1)) / d
-    store_half_sum(col, smul(m.c_dz_df2, gp12));
-    store_half_sum(col + 1, smul(m.c_dz_du2, gp12));
-    store_half_sum(col + 2, g12);
-    const Pair diff = Pair{g12.re[0], g12.im[0]} - Pair{g12.re[1], g12.im[1]};  // g1 - g2
-    store_pair(col + 3, Pair{-0.5, 0.5} * Pair{diff[1], diff[0]});              // i (g1 - g2) / 2
-    return out;
-  }
-  // The same in scalar complex arithmetic, one term at a time: the reference mode_bin equals bit for
-  // bit (SpectralModeFitter::use_reference_kernels; tests compare).
-  static cd mode_bin_reference(const ModeState& m, cd wk, double n_samples, cd* col) {
-    const cd inv1 = inv(1.0 - mul(m.z, wk));
-    const cd inv2 = inv(1.0 - mul(std::conj(m.z), wk));
-    const cd g1 = mul(m.one_minus_zn, inv1);
-    const cd g2 = mul(std::conj(m.one_minus_zn), inv2);
-    const cd out = 0.5 * (mul(m.c, g1) + mul(std::conj(m.c), g2));
-    if (!col) return out;
-    const cd gp1 = mul(mul(g1, wk) - n_samples * m.zn1, inv1);
-    const cd gp2 = mul(mul(g2, wk) - n_samples * std::conj(m.zn1), inv2);
-    col[0] = 0.5 * (mul(m.c_dz_df, gp1) + mul(std::conj(m.c_dz_df), gp2));
-    col[1] = 0.5 * (mul(m.c_dz_du, gp1) + mul(std::conj(m.c_dz_du), gp2));
-    col[2] = 0.5 * (g1 + g2);
-    const cd diff = g1 - g2;
-    col[3] = cd(-0.5 * diff.imag(), 0.5 * diff.real());  // i (g1 - g2) / 2
-    return out;
+    m.c2 = kernels::with_conj(m.c);
+    m.c_dz_df2 = kernels::with_conj(m.c_dz_df);
+    m.c_dz_du2 = kernels::with_conj(m.c_dz_du);
   }
 
   // Calls sink(k, X_model_k, jrow) for every bin k; when jrow != nullptr it first receives
@@ -178,18 +109,18 @@ struct Problem {
     const int lin0 = kPerMode * modes;
     for (std::size_t k = 0; k < data.size(); ++k) {
       cd out(0.0, 0.0);
-      const Split wk = both(w[k]);
+      const Split wk = kernels::both(w[k]);
       for (int j = 0; j < modes; ++j) {
         const ModeState& m = states[static_cast<std::size_t>(j)];
         cd* col = jrow ? jrow + kPerMode * j : nullptr;
-        out += reference ? mode_bin_reference(m, w[k], n_samples, col) : mode_bin(m, wk, col);
+        out += reference ? kernels::mode_bin_generic(m, w[k], n_samples, col) : kernels::mode_bin(m, wk, col);
       }
       for (int b = 0; b < residual_terms; ++b) {
         const double ub = basis[k * static_cast<std::size_t>(residual_terms) + static_cast<std::size_t>(b)];
         out += cd(x[lin0 + 2 * b], x[lin0 + 2 * b + 1]) * ub;
         if (jrow) {
-          store_pair(jrow + lin0 + 2 * b, Pair{ub, 0.0});
-          store_pair(jrow + lin0 + 2 * b + 1, Pair{0.0, ub});
+          store_pair(jrow + lin0 + 2 * b, f64x2{ub, 0.0});
+          store_pair(jrow + lin0 + 2 * b + 1, f64x2{0.0, ub});
         }
       }
       sink(k, out, jrow);
@@ -263,9 +194,9 @@ Eigen::MatrixXd real_jacobian(const Eigen::MatrixXcd& jc) {
 // tw holds e^{-2 pi i m / N}, interleaved.
 constexpr std::size_t kPhases = 8;
 
-// kPhases recursions per bin in SSE2 pairs (GCC/Clang vector extension): 4 independent chains per bin
-// and step. (An AVX2 variant, two bins in 4-wide vectors, measured 4.5 us per impact slower: the
-// analyzer runs it in short bursts, each paying the wake-up of the upper vector lanes.)
+// kPhases recursions per bin in f64x2 lanes (core/dsp/kernels/simd.hpp): 4 independent chains per bin
+// and step. (Not 4-wide AVX2 vectors: the analyzer runs the recursions in short bursts, each would pay
+// the wake-up of the upper vector lanes; docs/performance.md.)
 constexpr std::size_t kPairs = kPhases / 2;
 
 // The recursions of B bins (coefficients coef[0..B)) in one pass over the samples: x holds m_full rows
@@ -273,22 +204,20 @@ constexpr std::size_t kPairs = kPhases / 2;
 // segment is read in place, only its last partial row is copied. Writes s[M-1] then s[M-2] (kPhases
 // values each) per bin to out[16 b ..]. Steps go in pairs with the roles of the two state arrays
 // swapped (the new value overwrites s[m-2]), so that no register copies s[m-1] to s[m-2]: the loop is
-// bound by the issue of its vector operations, not by the latency of one step. B = 2 (8 chains, the
-// sample loads shared) measured 1.44 -> 1.07 us for the pipeline's 7 bins of 883 samples (scratch
-// benchmark on captured segments; B = 1 with the swap alone: 1.39 us, B = 2 with the copies: 1.32 us,
-// B = 3: 1.07 us, its state spills). Each bin's arithmetic is that of a one-bin recursion, exactly.
+// bound by the issue of its vector operations, not by the latency of one step. B = 2: 8 chains with the
+// sample loads shared (B = 3 spills its state). Each bin's arithmetic is that of a one-bin recursion,
+// exactly.
 template <std::size_t B>
 void goertzel_recursions(const double* x, std::size_t m_full, const double* tail, const double* coef, double* out) {
-  Pair c[B], sa[B][kPairs], sb[B][kPairs];
+  f64x2 c[B], sa[B][kPairs], sb[B][kPairs];
   for (std::size_t b = 0; b < B; ++b) {
-    c[b] = Pair{coef[b], coef[b]};
-    for (std::size_t q = 0; q < kPairs; ++q) sa[b][q] = sb[b][q] = Pair{0.0, 0.0};
+    c[b] = f64x2{coef[b], coef[b]};
+    for (std::size_t q = 0; q < kPairs; ++q) sa[b][q] = sb[b][q] = f64x2{0.0, 0.0};
   }
   // s2 <- x - s2 + c s1: s2 then holds the newest value.
-  auto step = [&](const double* xm, const Pair (*s1)[kPairs], Pair (*s2)[kPairs]) {
+  auto step = [&](const double* xm, const f64x2 (*s1)[kPairs], f64x2 (*s2)[kPairs]) {
     for (std::size_t q = 0; q < kPairs; ++q) {
-      Pair xv;
-      std::memcpy(&xv, xm + 2 * q, sizeof xv);
+      const f64x2 xv = simd::load(xm + 2 * q);
       for (std::size_t b = 0; b < B; ++b) s2[b][q] = (xv - s2[b][q]) + c[b] * s1[b][q];
     }
   };
@@ -323,8 +252,8 @@ void goertzel_bins(const double* x, std::size_t n, const double* tw, std::size_t
   std::copy(x + kPhases * m_full, x + n, tail);
   const double* tail_row = m_full < m_count ? tail : nullptr;
   auto coef = [&](std::size_t k) { return 2.0 * tw[2 * ((k * kPhases) % n)]; };
-  // X_k from the bin's s[M-1] (s1) and s[M-2] (s2). Table indices advance by addition (an integer
-  // division per twiddle measured ~5 % of the bins' time).
+  // X_k from the bin's s[M-1] (s1) and s[M-2] (s2). Table indices advance by addition (no integer
+  // division per twiddle).
   auto combine = [&](std::size_t k, const double* s1, const double* s2) {
     const std::size_t kp = (k * kPhases) % n;
     const cd e(tw[2 * kp], tw[2 * kp + 1]);
@@ -370,9 +299,9 @@ using SmallVec = Eigen::Matrix<double, Eigen::Dynamic, 1, Eigen::ColMajor, kMaxS
 // Solves M y = b for a symmetric positive definite M (n <= kMaxSmall, upper triangle read) by an
 // unpivoted L D L^T factorisation on fixed arrays; false when M is not numerically positive definite
 // (the caller then takes Eigen's pivoted LDLT or QR). The systems here are Jacobi-scaled (unit
-// diagonal, plus lambda in the LM steps), where the factorisation needs no pivoting. Eigen's
-// dynamic-size LDLT and its solves were ~7 % of a pipeline impact's analysis; one reciprocal per
-// column and no square roots keep the dependency chain short.
+// diagonal, plus lambda in the LM steps), where the factorisation needs no pivoting. Cheaper than
+// Eigen's dynamic-size LDLT and its solves: one reciprocal per column and no square roots keep the
+// dependency chain short.
 bool cholesky_solve(const SmallMat& m, int n, const double* b, double* y) {
   double l[kMaxSmall][kMaxSmall], dg[kMaxSmall], inv_d[kMaxSmall];
   for (int j = 0; j < n; ++j) {
@@ -406,24 +335,25 @@ bool cholesky_solve(const SmallMat& m, int n, const double* b, double* y) {
 }
 
 // Sums over the bins of Re(conj(J_a) J_b) (upper triangle) and Re(conj(J_a) r), bin by bin in bin
-// order. N > 0 (even): the column count as a compile-time constant, the sums in SSE2 pairs of columns
+// order. N > 0 (even): the column count as a compile-time constant, the sums in f64x2 pairs of columns
 // (b, b + 1) with each lane's operations the scalar ones (the pair holding the diagonal of an odd row
-// also forms the entry left of it, unused): measured 3.54 -> 3.44 us per pipeline fit against the
-// scalar loops. N = 0: scalar, n at run time. The same values either way.
+// also forms the entry left of it, unused). N = 0: scalar, n at run time. The same values either way.
 template <int N>
 struct NormalSums {
   static_assert(N % 2 == 0);
   static constexpr int kP = N / 2;
-  Pair acc[N][kP] = {};
-  Pair acc_g[kP] = {};
+  f64x2 acc[N][kP] = {};
+  f64x2 acc_g[kP] = {};
   void add(int, const double* jre, const double* jim, cd r) {
-    Pair re[kP], im[kP];
-    std::memcpy(re, jre, sizeof re);
-    std::memcpy(im, jim, sizeof im);
-    const Pair r_re{r.real(), r.real()}, r_im{r.imag(), r.imag()};
+    f64x2 re[kP], im[kP];
+    for (int c = 0; c < kP; ++c) {
+      re[c] = simd::load(jre + 2 * c);
+      im[c] = simd::load(jim + 2 * c);
+    }
+    const f64x2 r_re{r.real(), r.real()}, r_im{r.imag(), r.imag()};
     for (int c = 0; c < kP; ++c) acc_g[c] += re[c] * r_re + im[c] * r_im;
     for (int a = 0; a < N; ++a) {
-      const Pair a_re{jre[a], jre[a]}, a_im{jim[a], jim[a]};
+      const f64x2 a_re{jre[a], jre[a]}, a_im{jim[a], jim[a]};
       for (int c = a / 2; c < kP; ++c) acc[a][c] += a_re * re[c] + a_im * im[c];
     }
   }
@@ -496,7 +426,7 @@ void linear_normal_equations_n(const Problem& p, const SmallVec& x, SmallMat& a,
   p.states.resize(static_cast<std::size_t>(p.modes));
   for (int j = 0; j < p.modes; ++j) p.update_mode_state(p.states[static_cast<std::size_t>(j)], x, j);
   for (std::size_t k = 0; k < p.data.size(); ++k) {
-    const Split wk = both(p.w[k]);
+    const Split wk = kernels::both(p.w[k]);
     for (int j = 0; j < p.modes; ++j) {
       const Problem::ModeState& m = p.states[static_cast<std::size_t>(j)];
       // Jacobian entries d/d Re C and d/d Im C, as Problem::mode_bin (_reference) forms them.
@@ -508,8 +438,8 @@ void linear_normal_equations_n(const Problem& p, const SmallVec& x, SmallMat& a,
         diff = g1 - g2;
       } else {
         const Split zw = smul(m.z2, wk);
-        const Pair d_re = Pair{1.0, 1.0} - zw.re, d_im = -zw.im;
-        const Pair nrm = d_re * d_re + d_im * d_im;
+        const f64x2 d_re = f64x2{1.0, 1.0} - zw.re, d_im = -zw.im;
+        const f64x2 nrm = d_re * d_re + d_im * d_im;
         const Split g12 = smul(m.one_minus_zn2, {d_re / nrm, -d_im / nrm});
         c2 = half_sum(g12);
         diff = cd(g12.re[0] - g12.re[1], g12.im[0] - g12.im[1]);
@@ -608,6 +538,251 @@ bool minimise_small(const Problem& p, SmallVec& x, int max_evaluations, SmallMat
     g = g_trial;
     if (reduction <= 1e-12 * rss) return true;
   }
+}
+
+}  // namespace
+
+namespace {
+
+// The needed diagonal entries of (J^T J)^-1 at the solution, from an LDLT of the Jacobi-scaled matrix
+// (unit diagonal: the factorisation loses nothing to the parameters' different units), and whether
+// the problem is well posed. Parameters marked in `held` (an undamped component's ln zeta, see
+// report_fit) are decoupled: their rows and columns of the scaled matrix are those of the identity.
+template <typename Info>
+class NormalInverse {
+ public:
+  using Vec = Eigen::Matrix<double, Eigen::Dynamic, 1, Eigen::ColMajor, Info::MaxRowsAtCompileTime, 1>;
+
+  NormalInverse(const Info& info, const std::array<bool, 64>& held, int n_par)
+      : n_(n_par), d_(n_par), rhs_(n_par), inv_diag_(n_par) {
+    auto is_held = [&](int i) { return i < 64 && held[static_cast<std::size_t>(i)]; };
+    Info scaled(n_par, n_par);
+    for (int i = 0; i < n_par; ++i) d_[i] = info(i, i) > 0 ? std::sqrt(info(i, i)) : 1.0;
+    for (int i = 0; i < n_par; ++i)
+      for (int k = 0; k < n_par; ++k)
+        scaled(i, k) = is_held(i) || is_held(k) ? (i == k ? 1.0 : 0.0) : info(i, k) / (d_[i] * d_[k]);
+    ldlt_.compute(scaled);
+    well_posed_ = bounds_decide(info);
+    if (!well_posed_) {
+      const Eigen::SelfAdjointEigenSolver<Info> eig(info, Eigen::EigenvaluesOnly);
+      well_posed_ = eig.info() == Eigen::Success &&
+                    eig.eigenvalues().minCoeff() > 1e-12 * eig.eigenvalues().maxCoeff();
+    }
+  }
+
+  /// The smallest eigenvalue of J^T J above 1e-12 of the largest.
+  bool well_posed() const { return well_posed_; }
+
+  /// (A^-1)_ii: from the well-posedness bounds when they completed, else by a solve.
+  double inverse_diagonal(int i) {
+    if (have_inv_diag_) return inv_diag_[i];
+    rhs_.setZero();
+    rhs_[i] = 1.0;
+    const Vec col = ldlt_.solve(rhs_);
+    return col[i] / (d_[i] * d_[i]);
+  }
+
+ private:
+  int n_ = 0;
+  Vec d_, rhs_, inv_diag_;  // the Jacobi scale sqrt(A_ii), a solve's right side, (A^-1)_ii
+  Eigen::LDLT<Info> ldlt_;
+  bool have_inv_diag_ = false, well_posed_ = false;
+
+  // Bounds decide the clear cases without an eigensolver: for a positive definite A,
+  // lambda_min >= 1 / trace(A^-1) and lambda_max <= max_i sum_k |A_ik| (Gershgorin). A factor 2
+  // margin keeps the bounds' rounding from deciding a borderline case; those go to the solver
+  // (false here). With scaled = P^T L D L^T P: (A^-1)_ii = sum_k (L^-1 P e_i)_k^2 / D_k / d_i^2.
+  bool bounds_decide(const Info& info) {
+    if (!(ldlt_.info() == Eigen::Success && ldlt_.isPositive())) return false;
+    const int n_par = n_;
+    const auto& lu = ldlt_.matrixLDLT();  // strictly lower part: L (unit diagonal)
+    const auto dvec = ldlt_.vectorD();
+    // idx = P (0, 1, ..., n-1): (P x)_j = x_{idx_j} (P applies its transpositions in order).
+    Vec idx(n_par), y(n_par);
+    for (int i = 0; i < n_par; ++i) idx[i] = i;
+    const auto& tr = ldlt_.transpositionsP();
+    for (int k = 0; k < n_par; ++k) std::swap(idx[k], idx[static_cast<int>(tr.coeff(k))]);
+    double trace_inv = 0.0, row_max = 0.0;
+    bool finite = true;
+    for (int j = 0; j < n_par && finite; ++j) {
+      // y = L^-1 e_j (forward substitution), contributing to (A^-1)_ii with i = idx_j.
+      y.setZero();
+      y[j] = 1.0;
+      double diag = 1.0 / dvec[j];
+      for (int k = j + 1; k < n_par; ++k) {
+        double v = 0.0;
+        for (int m = j; m < k; ++m) v -= lu(k, m) * y[m];
+        y[k] = v;
+        diag += v * v / dvec[k];
+      }
+      const int i = static_cast<int>(idx[j]);
+      inv_diag_[i] = diag / (d_[i] * d_[i]);
+      trace_inv += inv_diag_[i];
+      finite = dvec[j] > 0 && std::isfinite(diag);
+    }
+    have_inv_diag_ = finite;
+    for (int i = 0; i < n_par; ++i) {
+      double row = 0.0;
+      for (int k = 0; k < n_par; ++k) row += std::abs(info(i, k));
+      row_max = std::max(row_max, row);
+    }
+    return finite && std::isfinite(trace_inv) && std::isfinite(row_max) && trace_inv > 0 &&
+           1.0 / trace_inv > 2e-12 * row_max;
+  }
+};
+
+// Estimates from the solution x, its RSS and the normal matrix info = J^T J there, into result
+// (seg_s: the segment's duration, s).
+template <typename X, typename Info>
+void report_fit(const Problem& p, const X& x, double rss, const Info& info, bool converged, double seg_s,
+                const MlFitOptions& options, MlFitResult& result) {
+  const int n_par = p.params();
+  result.converged = converged;
+  // Covariance s^2 (J^T J)^-1 at the solution, s^2 = RSS / (values - params).
+  const double s2 = rss / static_cast<double>(p.values() - n_par);
+  result.noise_sd = std::sqrt(2.0 * s2 / p.n_samples);  // bin component variance = N sigma^2 / 2
+  // A component that does not decay within the segment (sigma T < 1e-6: a steady line fitted as a
+  // mode, whose ln zeta ran off towards -infinity where the RSS no longer depends on it) has no
+  // determined damping; the covariance of the other parameters is taken with it held at zero (its
+  // row and column decoupled), and its own interval is null (status fit_failed).
+  std::array<bool, 64> undamped{};
+  for (int j = 0; j < p.modes && kPerMode * j + 1 < 64; ++j) {
+    const double zeta = std::exp(x[kPerMode * j + 1]);
+    undamped[static_cast<std::size_t>(kPerMode * j + 1)] = kTwoPi * x[kPerMode * j] * zeta * seg_s < 1e-6;
+  }
+  auto held = [&](int i) { return i < 64 && undamped[static_cast<std::size_t>(i)]; };
+  NormalInverse<Info> inverse(info, undamped, n_par);
+  const bool well_posed = inverse.well_posed();
+  for (int j = 0; j < p.modes; ++j) {
+    double var_f = NAN, var_u = NAN;
+    if (well_posed) {
+      var_f = s2 * inverse.inverse_diagonal(kPerMode * j);
+      var_u = s2 * inverse.inverse_diagonal(kPerMode * j + 1);
+    }
+    DampingEstimate e;
+    e.method = DampingMethod::ml;
+    e.window_start_s = 0.0;
+    e.window_end_s = seg_s;
+    e.points = p.data.size();
+    e.f_hz = x[kPerMode * j];
+    e.zeta = std::exp(x[kPerMode * j + 1]);
+    e.f_sd_hz = std::sqrt(var_f);
+    const double sd_u = held(kPerMode * j + 1) ? NAN : std::sqrt(var_u);  // sd of ln zeta
+    e.zeta_sd = e.zeta * sd_u;
+    e.zeta_ci95_lo = e.zeta * std::exp(-1.959963984540054 * sd_u);
+    e.zeta_ci95_hi = e.zeta * std::exp(1.959963984540054 * sd_u);
+    e.amplitude = std::abs(cd(x[kPerMode * j + 2], x[kPerMode * j + 3]));
+    const bool sane = std::isfinite(e.f_hz) && std::isfinite(e.zeta) && e.zeta < 1.0 &&
+                      e.f_hz >= options.f_lo_hz && e.f_hz <= options.f_hi_hz && std::isfinite(sd_u);
+    e.status = (result.converged && well_posed && sane) ? EstimateStatus::ok : EstimateStatus::fit_failed;
+    result.modes.push_back(e);
+  }
+}
+
+// Small problems (at most kMaxSmall parameters): the start, nonlinear parameters from the guesses
+// and linear ones (amplitudes, residual terms) from linear least squares at those frequencies and
+// dampings, then minimise_small.
+void fit_small(Problem& p, std::span<const ModeGuess> guesses, const MlFitOptions& options, double seg_s,
+               MlFitResult& result) {
+  const int n_par = p.params();
+  SmallVec x = SmallVec::Zero(n_par);
+  for (int j = 0; j < p.modes; ++j) {
+    x[kPerMode * j] = guesses[static_cast<std::size_t>(j)].f_hz;
+    x[kPerMode * j + 1] = std::log(guesses[static_cast<std::size_t>(j)].zeta);
+  }
+  SmallMat a(n_par, n_par);
+  // With the linear parameters at 0 the residual is the data, and the model is linear in them: the
+  // linear least-squares solution solves the normal equations restricted to their rows and columns.
+  SmallMat al(n_par, n_par);
+  SmallVec gl(n_par);
+  linear_normal_equations(p, x, al, gl);
+  int lin[kMaxSmall];
+  int n_lin = 0;
+  for (int j = 0; j < p.modes; ++j) {
+    lin[n_lin++] = kPerMode * j + 2;
+    lin[n_lin++] = kPerMode * j + 3;
+  }
+  for (int b = 0; b < p.residual_terms; ++b) {
+    lin[n_lin++] = kPerMode * p.modes + 2 * b;
+    lin[n_lin++] = kPerMode * p.modes + 2 * b + 1;
+  }
+  // Jacobi-scaled Cholesky (QR with column pivoting when that matrix is not positive definite).
+  SmallVec sol(n_lin);
+  {
+    double dl[kMaxSmall] = {}, rhs[kMaxSmall] = {}, y[kMaxSmall] = {};
+    SmallMat als(n_lin, n_lin);
+    for (int r = 0; r < n_lin; ++r) dl[r] = al(r, r) > 0 ? std::sqrt(al(r, r)) : 1.0;
+    for (int r = 0; r < n_lin; ++r) {
+      rhs[r] = gl[r] / dl[r];
+      for (int c = 0; c < n_lin; ++c) als(r, c) = al(r, c) / (dl[r] * dl[c]);
+    }
+    if (cholesky_solve(als, n_lin, rhs, y)) {
+      for (int r = 0; r < n_lin; ++r) sol[r] = y[r] / dl[r];
+    } else {
+      sol = al.colPivHouseholderQr().solve(gl);
+    }
+  }
+  for (int r = 0; r < n_lin; ++r) x[lin[r]] = sol[r];
+  double rss = 0.0;
+  const bool converged = minimise_small(p, x, options.max_evaluations, a, rss);
+  report_fit(p, x, rss, a, converged, seg_s, options, result);
+}
+
+// General problems (`ridgewatch modes`: several modes, thousands of bins): Eigen's MINPACK
+// Levenberg-Marquardt on the full Jacobian (QR, no squared condition number).
+void fit_general(Problem& p, std::span<const ModeGuess> guesses, const MlFitOptions& options, double seg_s,
+                 MlFitResult& result) {
+  const int n_par = p.params();
+  Eigen::VectorXd x = Eigen::VectorXd::Zero(n_par);
+  for (int j = 0; j < p.modes; ++j) {
+    const ModeGuess& g = guesses[static_cast<std::size_t>(j)];
+    x[kPerMode * j] = g.f_hz;
+    x[kPerMode * j + 1] = std::log(g.zeta);
+  }
+  {
+    std::vector<cd> model_buf;
+    Eigen::MatrixXcd jc;
+    p.model(x, model_buf, &jc);
+    std::vector<Eigen::Index> linear_cols;
+    for (int j = 0; j < p.modes; ++j) {
+      linear_cols.push_back(kPerMode * j + 2);
+      linear_cols.push_back(kPerMode * j + 3);
+    }
+    for (int b = 0; b < p.residual_terms; ++b) {
+      linear_cols.push_back(kPerMode * p.modes + 2 * b);
+      linear_cols.push_back(kPerMode * p.modes + 2 * b + 1);
+    }
+    const Eigen::MatrixXd jr = real_jacobian(jc);
+    Eigen::MatrixXd a(jr.rows(), static_cast<Eigen::Index>(linear_cols.size()));
+    for (std::size_t i = 0; i < linear_cols.size(); ++i)
+      a.col(static_cast<Eigen::Index>(i)) = jr.col(linear_cols[i]);
+    Eigen::VectorXd y(jr.rows());
+    for (std::size_t k = 0; k < p.data.size(); ++k) {
+      y[static_cast<Eigen::Index>(2 * k)] = p.data[k].real();
+      y[static_cast<Eigen::Index>(2 * k + 1)] = p.data[k].imag();
+    }
+    const Eigen::VectorXd lin = a.colPivHouseholderQr().solve(y);
+    for (std::size_t i = 0; i < linear_cols.size(); ++i) x[linear_cols[i]] = lin[static_cast<Eigen::Index>(i)];
+  }
+
+  LmFunctor functor{&p, {}, {}};
+  Eigen::LevenbergMarquardt<LmFunctor> lm(functor);
+  lm.parameters.maxfev = options.max_evaluations;
+  lm.parameters.xtol = 1e-12;
+  lm.parameters.ftol = 1e-12;
+  const auto status = lm.minimize(x);
+  using Space = Eigen::LevenbergMarquardtSpace::Status;
+  const bool converged = status != Space::ImproperInputParameters &&
+                         status != Space::TooManyFunctionEvaluation && status != Space::UserAsked;
+
+  std::vector<cd> model_buf;
+  Eigen::MatrixXcd jc;
+  p.model(x, model_buf, &jc);
+  double rss = 0.0;
+  for (std::size_t k = 0; k < p.data.size(); ++k) rss += std::norm(p.data[k] - model_buf[k]);
+  const Eigen::MatrixXd jr = real_jacobian(jc);
+  const Eigen::MatrixXd info = jr.transpose() * jr;
+  report_fit(p, x, rss, info, converged, seg_s, options, result);
 }
 
 }  // namespace
@@ -756,7 +931,7 @@ void SpectralModeFitter::fit(std::span<const double> segment, std::span<const Mo
   if (k_hi <= k_lo) return fail_all(EstimateStatus::too_short);
   // Only the bins in [k_lo, k_hi] are used. A few of them (the pipeline's single mode in f_d +- 12 %:
   // ~7 bins of a 1766-sample segment) are cheaper by the Goertzel recursion than by a full FFT of an
-  // awkward length (1766 = 2 * 883: 209k instructions per FFTW ESTIMATE transform); many bins
+  // awkward length (1766 = 2 * 883); many bins
   // (`ridgewatch modes`: thousands) go through the FFT.
   const std::size_t n_bins = k_hi - k_lo + 1;
   im.evaluate_bins(segment.data(), k_lo, n_bins);
@@ -777,213 +952,10 @@ void SpectralModeFitter::fit(std::span<const double> segment, std::span<const Mo
   for (const ModeGuess& g : guesses)
     if (!(g.f_hz > 0 && g.zeta > 0 && g.zeta < 1)) return fail_all(EstimateStatus::fit_failed);
 
-  // Estimates from the solution x, its RSS and the normal matrix info = J^T J there.
-  auto report = [&](const auto& x, double rss, const auto& info, bool converged) {
-    result.converged = converged;
-    // Covariance s^2 (J^T J)^-1 at the solution, s^2 = RSS / (values - params).
-    const double s2 = rss / static_cast<double>(p.values() - n_par);
-    result.noise_sd = std::sqrt(2.0 * s2 / p.n_samples);  // bin component variance = N sigma^2 / 2
-    using Info = std::decay_t<decltype(info)>;
-    using Vec = Eigen::Matrix<double, Eigen::Dynamic, 1, Eigen::ColMajor, Info::MaxRowsAtCompileTime, 1>;
-    // The needed diagonal entries of (J^T J)^-1 from an LDLT of the Jacobi-scaled matrix (unit
-    // diagonal: the factorisation loses nothing to the parameters' different units).
-    Vec d(n_par), rhs(n_par);
-    Info scaled(n_par, n_par);
-    // A component that does not decay within the segment (sigma T < 1e-6: a steady line fitted as a
-    // mode, whose ln zeta ran off towards -infinity where the RSS no longer depends on it) has no
-    // determined damping; the covariance of the other parameters is taken with it held at zero (its
-    // row and column decoupled), and its own interval is null (status fit_failed).
-    std::array<bool, 64> undamped{};
-    for (int j = 0; j < p.modes && kPerMode * j + 1 < 64; ++j) {
-      const double zeta = std::exp(x[kPerMode * j + 1]);
-      undamped[static_cast<std::size_t>(kPerMode * j + 1)] = kTwoPi * x[kPerMode * j] * zeta * seg_s < 1e-6;
-    }
-    auto held = [&](int i) { return i < 64 && undamped[static_cast<std::size_t>(i)]; };
-    for (int i = 0; i < n_par; ++i) d[i] = info(i, i) > 0 ? std::sqrt(info(i, i)) : 1.0;
-    for (int i = 0; i < n_par; ++i)
-      for (int k = 0; k < n_par; ++k)
-        scaled(i, k) = held(i) || held(k) ? (i == k ? 1.0 : 0.0) : info(i, k) / (d[i] * d[k]);
-    const Eigen::LDLT<Info> ldlt(scaled);
-    Vec inv_diag(n_par);  // (A^-1)_ii, from the well-posedness loop below when it completes
-    bool have_inv_diag = false;
-    auto inverse_diagonal = [&](int i) {
-      if (have_inv_diag) return inv_diag[i];
-      rhs.setZero();
-      rhs[i] = 1.0;
-      const Vec col = ldlt.solve(rhs);
-      return col[i] / (d[i] * d[i]);
-    };
-    // Well-posed: the smallest eigenvalue of J^T J above 1e-12 of the largest. Bounds decide the
-    // clear cases without an eigensolver (it was ~8 % of a pipeline fit): for a positive definite A,
-    // lambda_min >= 1 / trace(A^-1) and lambda_max <= max_i sum_k |A_ik| (Gershgorin). A factor 2
-    // margin keeps the bounds' rounding from deciding a borderline case; those go to the solver.
-    // With scaled = P^T L D L^T P: (A^-1)_ii = sum_k (L^-1 P e_i)_k^2 / D_k / d_i^2.
-    bool well_posed = false;
-    if (ldlt.info() == Eigen::Success && ldlt.isPositive()) {
-      const auto& lu = ldlt.matrixLDLT();  // strictly lower part: L (unit diagonal)
-      const auto dvec = ldlt.vectorD();
-      // idx = P (0, 1, ..., n-1): (P x)_j = x_{idx_j} (P applies its transpositions in order).
-      Vec idx(n_par), y(n_par);
-      for (int i = 0; i < n_par; ++i) idx[i] = i;
-      const auto& tr = ldlt.transpositionsP();
-      for (int k = 0; k < n_par; ++k) std::swap(idx[k], idx[static_cast<int>(tr.coeff(k))]);
-      double trace_inv = 0.0, row_max = 0.0;
-      bool finite = true;
-      for (int j = 0; j < n_par && finite; ++j) {
-        // y = L^-1 e_j (forward substitution), contributing to (A^-1)_ii with i = idx_j.
-        y.setZero();
-        y[j] = 1.0;
-        double diag = 1.0 / dvec[j];
-        for (int k = j + 1; k < n_par; ++k) {
-          double v = 0.0;
-          for (int m = j; m < k; ++m) v -= lu(k, m) * y[m];
-          y[k] = v;
-          diag += v * v / dvec[k];
-        }
-        const int i = static_cast<int>(idx[j]);
-        inv_diag[i] = diag / (d[i] * d[i]);
-        trace_inv += inv_diag[i];
-        finite = dvec[j] > 0 && std::isfinite(diag);
-      }
-      have_inv_diag = finite;
-      for (int i = 0; i < n_par; ++i) {
-        double row = 0.0;
-        for (int k = 0; k < n_par; ++k) row += std::abs(info(i, k));
-        row_max = std::max(row_max, row);
-      }
-      well_posed = finite && std::isfinite(trace_inv) && std::isfinite(row_max) && trace_inv > 0 &&
-                   1.0 / trace_inv > 2e-12 * row_max;
-    }
-    if (!well_posed) {
-      const Eigen::SelfAdjointEigenSolver<Info> eig(info, Eigen::EigenvaluesOnly);
-      well_posed = eig.info() == Eigen::Success &&
-                   eig.eigenvalues().minCoeff() > 1e-12 * eig.eigenvalues().maxCoeff();
-    }
-    for (int j = 0; j < p.modes; ++j) {
-      double var_f = NAN, var_u = NAN;
-      if (well_posed) {
-        var_f = s2 * inverse_diagonal(kPerMode * j);
-        var_u = s2 * inverse_diagonal(kPerMode * j + 1);
-      }
-      DampingEstimate e;
-      e.method = DampingMethod::ml;
-      e.window_start_s = 0.0;
-      e.window_end_s = seg_s;
-      e.points = p.data.size();
-      e.f_hz = x[kPerMode * j];
-      e.zeta = std::exp(x[kPerMode * j + 1]);
-      e.f_sd_hz = std::sqrt(var_f);
-      const double sd_u = held(kPerMode * j + 1) ? NAN : std::sqrt(var_u);  // sd of ln zeta
-      e.zeta_sd = e.zeta * sd_u;
-      e.zeta_ci95_lo = e.zeta * std::exp(-1.959963984540054 * sd_u);
-      e.zeta_ci95_hi = e.zeta * std::exp(1.959963984540054 * sd_u);
-      e.amplitude = std::abs(cd(x[kPerMode * j + 2], x[kPerMode * j + 3]));
-      const bool sane = std::isfinite(e.f_hz) && std::isfinite(e.zeta) && e.zeta < 1.0 &&
-                        e.f_hz >= options.f_lo_hz && e.f_hz <= options.f_hi_hz && std::isfinite(sd_u);
-      e.status = (result.converged && well_posed && sane) ? EstimateStatus::ok : EstimateStatus::fit_failed;
-      result.modes.push_back(e);
-    }
-  };
-
-  // Start: nonlinear parameters from the guesses, linear ones (amplitudes, residual terms) from
-  // linear least squares at those frequencies and dampings.
-  if (n_par <= kMaxSmall) {
-    SmallVec x = SmallVec::Zero(n_par);
-    for (int j = 0; j < p.modes; ++j) {
-      x[kPerMode * j] = guesses[static_cast<std::size_t>(j)].f_hz;
-      x[kPerMode * j + 1] = std::log(guesses[static_cast<std::size_t>(j)].zeta);
-    }
-    SmallMat a(n_par, n_par);
-    // With the linear parameters at 0 the residual is the data, and the model is linear in them: the
-    // linear least-squares solution solves the normal equations restricted to their rows and columns.
-    SmallMat al(n_par, n_par);
-    SmallVec gl(n_par);
-    linear_normal_equations(p, x, al, gl);
-    int lin[kMaxSmall];
-    int n_lin = 0;
-    for (int j = 0; j < p.modes; ++j) {
-      lin[n_lin++] = kPerMode * j + 2;
-      lin[n_lin++] = kPerMode * j + 3;
-    }
-    for (int b = 0; b < p.residual_terms; ++b) {
-      lin[n_lin++] = kPerMode * p.modes + 2 * b;
-      lin[n_lin++] = kPerMode * p.modes + 2 * b + 1;
-    }
-    // Jacobi-scaled Cholesky (QR with column pivoting when that matrix is not positive definite).
-    SmallVec sol(n_lin);
-    {
-      double dl[kMaxSmall] = {}, rhs[kMaxSmall] = {}, y[kMaxSmall] = {};
-      SmallMat als(n_lin, n_lin);
-      for (int r = 0; r < n_lin; ++r) dl[r] = al(r, r) > 0 ? std::sqrt(al(r, r)) : 1.0;
-      for (int r = 0; r < n_lin; ++r) {
-        rhs[r] = gl[r] / dl[r];
-        for (int c = 0; c < n_lin; ++c) als(r, c) = al(r, c) / (dl[r] * dl[c]);
-      }
-      if (cholesky_solve(als, n_lin, rhs, y)) {
-        for (int r = 0; r < n_lin; ++r) sol[r] = y[r] / dl[r];
-      } else {
-        sol = al.colPivHouseholderQr().solve(gl);
-      }
-    }
-    for (int r = 0; r < n_lin; ++r) x[lin[r]] = sol[r];
-    double rss = 0.0;
-    const bool converged = minimise_small(p, x, options.max_evaluations, a, rss);
-    report(x, rss, a, converged);
-    return;
-  }
-
-  // General problems (`ridgewatch modes`: several modes, thousands of bins): Eigen's MINPACK
-  // Levenberg-Marquardt on the full Jacobian (QR, no squared condition number).
-  Eigen::VectorXd x = Eigen::VectorXd::Zero(n_par);
-  for (int j = 0; j < p.modes; ++j) {
-    const ModeGuess& g = guesses[static_cast<std::size_t>(j)];
-    x[kPerMode * j] = g.f_hz;
-    x[kPerMode * j + 1] = std::log(g.zeta);
-  }
-  {
-    std::vector<cd> model_buf;
-    Eigen::MatrixXcd jc;
-    p.model(x, model_buf, &jc);
-    std::vector<Eigen::Index> linear_cols;
-    for (int j = 0; j < p.modes; ++j) {
-      linear_cols.push_back(kPerMode * j + 2);
-      linear_cols.push_back(kPerMode * j + 3);
-    }
-    for (int b = 0; b < p.residual_terms; ++b) {
-      linear_cols.push_back(kPerMode * p.modes + 2 * b);
-      linear_cols.push_back(kPerMode * p.modes + 2 * b + 1);
-    }
-    const Eigen::MatrixXd jr = real_jacobian(jc);
-    Eigen::MatrixXd a(jr.rows(), static_cast<Eigen::Index>(linear_cols.size()));
-    for (std::size_t i = 0; i < linear_cols.size(); ++i)
-      a.col(static_cast<Eigen::Index>(i)) = jr.col(linear_cols[i]);
-    Eigen::VectorXd y(jr.rows());
-    for (std::size_t k = 0; k < p.data.size(); ++k) {
-      y[static_cast<Eigen::Index>(2 * k)] = p.data[k].real();
-      y[static_cast<Eigen::Index>(2 * k + 1)] = p.data[k].imag();
-    }
-    const Eigen::VectorXd lin = a.colPivHouseholderQr().solve(y);
-    for (std::size_t i = 0; i < linear_cols.size(); ++i) x[linear_cols[i]] = lin[static_cast<Eigen::Index>(i)];
-  }
-
-  LmFunctor functor{&p, {}, {}};
-  Eigen::LevenbergMarquardt<LmFunctor> lm(functor);
-  lm.parameters.maxfev = options.max_evaluations;
-  lm.parameters.xtol = 1e-12;
-  lm.parameters.ftol = 1e-12;
-  const auto status = lm.minimize(x);
-  using Space = Eigen::LevenbergMarquardtSpace::Status;
-  const bool converged = status != Space::ImproperInputParameters &&
-                         status != Space::TooManyFunctionEvaluation && status != Space::UserAsked;
-
-  std::vector<cd> model_buf;
-  Eigen::MatrixXcd jc;
-  p.model(x, model_buf, &jc);
-  double rss = 0.0;
-  for (std::size_t k = 0; k < p.data.size(); ++k) rss += std::norm(p.data[k] - model_buf[k]);
-  const Eigen::MatrixXd jr = real_jacobian(jc);
-  const Eigen::MatrixXd info = jr.transpose() * jr;
-  report(x, rss, info, converged);
+  if (n_par <= kMaxSmall)
+    fit_small(p, guesses, options, seg_s, result);
+  else
+    fit_general(p, guesses, options, seg_s, result);
 }
 
 }  // namespace ridgewatch::dsp

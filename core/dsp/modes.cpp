@@ -12,6 +12,7 @@
 #include <fftw3.h>
 #include <mutex>
 
+#include "core/dsp/cross_check.hpp"
 #include "core/dsp/fftw_planner.hpp"
 #include "core/dsp/ml_fit.hpp"
 #include "core/dsp/morlet_cwt.hpp"
@@ -300,12 +301,8 @@ void sanitize(DampingEstimate& e, double f_lo, double f_hi, std::string& note) {
 // varies along the decay: the estimators then weight the decay differently and report different
 // averages, and neither is "the" zeta (the backbone is; the note says so). A wider allowance let a
 // single ridge over an unresolved pair pass as `ok` with zeta 17 % off (tests/test_modes_property.cpp).
-bool agree(const DampingEstimate& a, const DampingEstimate& b) {
-  const double z_zeta = std::abs(std::log(a.zeta / b.zeta)) / std::hypot(std::hypot(a.zeta_sd / a.zeta, b.zeta_sd / b.zeta), 0.01);
-  const double fa = std::isfinite(a.f_sd_hz) ? a.f_sd_hz : 0.0, fb = std::isfinite(b.f_sd_hz) ? b.f_sd_hz : 0.0;
-  const double z_f = std::abs(a.f_hz - b.f_hz) / std::hypot(std::hypot(fa, fb), 1e-4 * a.f_hz);
-  return z_zeta <= 3.5 && z_f <= 4.0;
-}
+// The rule is shared with the impact analyzer (core/dsp/cross_check.hpp), each with its own limits.
+bool agree(const DampingEstimate& a, const DampingEstimate& b) { return estimates_agree(a, b, kModesRule); }
 
 std::string fmt_g(double v) {
   char buf[32];

@@ -23,16 +23,12 @@
 //     20 % and sim-transmission-error's from 0.6 % to 1.0 %, and made a 20 dB sim-nuisance event
 //     ok with a 33 % error. At 51.2 kHz (30 -> 15, 1766 -> 883) the estimates agree with the full-rate
 //     ones to 1e-6 (sim-tacho). Otherwise (25.6 kHz, 8 kHz, ...) everything runs at full rate.
-//     Measured (bench_pipeline BM_AnalyzerMl, 249 impacts at 51.2 kHz, with the CWT's half-length
-//     forward FFT): 14.9-16.5 -> 12.85 us per impact (ridge-ls 9.8-10.3 -> 8.9 us); the copy with the
-//     peak check 0.8 us, the CWT forward FFT 2.1 -> 1.0 us, the ML Goertzel bins about half. With the
-//     log-free ridge follow-up (step 2) and the shared f_ridge / f_d row (step 3): 12.0 us (ridge-ls
-//     8.0 us). Not taken: 2 eta0 rows per unit ln f (14 -> 10 rows, 11.6 us) moved sim-second-mode's
-//     median |zeta error| from 1.5 % to 26 %.
+//     (Speed of the half-rate path: docs/performance.md, "Impact analyzer".)
 //  1. Band-limited Morlet CWT (core/dsp/morlet_cwt.hpp, Eq. 1-7 with the amplitude normalisation that
 //     makes |W| the envelope of Eq. 12) of the window [onset - pretrigger, onset + window) on rows
 //     log-spaced over f_expected (1 +- band_rel), 3 eta0 rows per unit of ln f (adjacent rows overlap
-//     to within 1/(3 eta0) of a filter sd).
+//     to within 1/(3 eta0) of a filter sd; 2 eta0 rows moved replay-data sim-second-mode's median
+//     |zeta error| from 1.5 % to 26 %).
 //  2. Ridge, on |W|^2 minus each row's median over the window (removes stationary lines): the largest
 //     value after the onset (not in the last 4 kernel widths, which see the window
 //     end) and its continuation column by column, moving at most one row per column (continuity),
@@ -74,10 +70,15 @@
 //     intervals of +-3 %). The SNR for the status rule then uses the fit's residual noise when that
 //     is below the gaps' floor (which holds the line). A real second mode (sim-second-mode) is fitted
 //     the same way; the cross-check below still marks such events when ridge-ls, which sees both
-//     modes, disagrees. Measured (tests/test_pipeline_indep.cpp, 3 seeds, 861 impacts): ok 42 -> 61 %,
-//     largest |zeta error| of an ok event 8.2 %.
-//  5. Cross-check of ml against ridge-ls (as in `ridgewatch modes`): more than 4 combined standard
-//     uncertainties apart (plus a 1 % / 1e-4 allowance) -> inconsistent.
+//     modes, disagrees. (tests/test_pipeline_indep.cpp, 3 seeds, 861 impacts: largest |zeta error| of
+//     an ok event 8.2 %.)
+//  5. Cross-check of ml against ridge-ls (core/dsp/cross_check.hpp, shared with `ridgewatch modes`,
+//     the analyzer's limits): more than 4 combined standard uncertainties apart (plus a 1 % / 1e-4
+//     allowance) -> inconsistent.
+//
+// Where each step lives: 0, 1, 3 and the status rule in impact_analyzer.cpp (window_peak,
+// envelope_estimates, report); 2 in ridge_track.hpp (find_ridge, follow_ridge -> RidgeTrack); 4 in
+// ml_step.hpp (MlStep); 5 in core/dsp/cross_check.hpp.
 //
 // Noise: the caller gives the in-band power of the samples between impacts (pre-trigger samples);
 // it is converted to the white-noise variance the CWT rows' noise gains refer to.
@@ -94,6 +95,8 @@
 #include "core/dsp/ml_fit.hpp"
 #include "core/dsp/morlet_cwt.hpp"
 #include "core/pipeline/impact_event.hpp"
+#include "core/pipeline/ml_step.hpp"
+#include "core/pipeline/ridge_track.hpp"
 
 namespace ridgewatch::pipeline {
 
@@ -146,7 +149,7 @@ class ImpactAnalyzer {
   /// FFT plan once (FFTW allocates work space on a plan's first execution); analyze() calls it on its
   /// first use. After it, analyze() allocates nothing.
   /// (StreamProcessor keeps one analyzer per maximum window and prepares only those its decays use:
-  /// preparing all of window_s = 1 s ... 16 ms cost 76 ms and 26 MB at 51.2 kHz.)
+  /// preparing every window length costs tens of ms and MB, docs/performance.md.)
   void prepare();
   bool prepared() const { return prepared_; }
 
@@ -177,19 +180,24 @@ class ImpactAnalyzer {
   std::vector<double> scratch_;                  // median of a row (select_kth_nonnegative's scratch)
   std::vector<double> row_median_;               // each row's median |W|^2 over the window
   bool prepared_ = false;                        // prepare() has run
-  std::vector<std::size_t> fitter_len_;          // segment lengths of the ML fitters
-  std::vector<std::size_t> fitter_bins_;         // the most DFT bins each fitter's fits use
-  std::vector<std::unique_ptr<dsp::SpectralModeFitter>> fitters_;
+  std::unique_ptr<MlStep> ml_;                   // step 4: the ML fitters
   dsp::EnvelopeWorkspace envelope_ws_;           // line-fit scratch, reserved for max columns
-  dsp::MlFitResult ml_result_;                   // reused: modes reserved for one guess
-  dsp::MlFitResult ml_result2_;                  // the fit with a line component: two guesses
-  dsp::MlFitResult ml_try_;                      // ... one of its candidates
-  std::vector<std::complex<double>> line_bins_;  // the segment's DFT bins in the fit band
+  dsp::EnvelopeFitWeights fit_weights_;          // the line fits' weights of the current row (step 3)
 
   /// White-noise variance gain of the band-limited row at f (noise_gain), from the nearest grid row:
   /// the discrete filter's gain is proportional to f (4 sqrt(pi) f / (eta0 fs), the Gaussian spans
   /// ~6 bins per sd, so the sampled sum equals the integral to rounding).
   double gain_at(double f_hz) const;
+
+  // The steps of analyze() (impact_analyzer.cpp; the header comment's numbering).
+  struct Frame;
+  struct Envelope;
+  double window_peak(const Frame& fr);
+  void load_row(double f_hz, std::size_t cols);
+  RidgeTrack track_ridge(const Frame& fr, std::size_t onset_col, std::size_t last_col);
+  Envelope envelope_estimates(const Frame& fr, const RidgeTrack& track);
+  dsp::DampingEstimate ml_estimate(const Frame& fr, const RidgeTrack& track, const Envelope& env,
+                                   double& snr_status_db);
 };
 
 }  // namespace ridgewatch::pipeline
