@@ -53,7 +53,9 @@ void ImpactDetector::spike_test(std::uint64_t n, double t_mad) {
   // of the spikes just at that limit are kept as signal (larger ones never).
   {
     const auto at = [&](std::ptrdiff_t k) { return static_cast<double>(std::abs(r[k])); };
-    const std::uint64_t lo = std::max<std::uint64_t>({n > 10 ? n - 10 : 0, seg_start_ + 2, base_});
+    // (Not bounded by base_: it wraps below 0 for a segment starting before index hist_, and the
+    // buffer always holds hist_ >= 12 samples before the run's first sample anyway.)
+    const std::uint64_t lo = std::max<std::uint64_t>(n > 10 ? n - 10 : 0, seg_start_ + 2);
     double around = 0.0;
     for (std::uint64_t k = lo; k + 3 <= n; ++k) around = std::max(around, at(static_cast<std::ptrdiff_t>(k) - static_cast<std::ptrdiff_t>(n)));
     for (std::ptrdiff_t k = 3; k <= 10; ++k) {

@@ -81,16 +81,6 @@ void ImpactDetector::decide_band_sample(std::uint64_t m, double e, double mad) {
   }
 }
 
-void ImpactDetector::start_run_scale() {
-  run_clip_ = static_cast<float>(3.0 * mad_sum_ + 1e-30);
-  run_clip_ready_ = mad_count_ >= kMadWarmup;
-}
-
-void ImpactDetector::note_scale(std::size_t k) {
-  scale_at_[k] = mad_sum_;
-  scale_ready_[k] = mad_count_ >= kMadWarmup;
-}
-
 double ImpactDetector::white_band_power(double mad) const {
   // The band power of white noise with the variance the spike stage measures: the interpolation
   // residual has variance (1 + 34/36) sigma^2 for white noise (stage 1), mad (mad_sum_) is its mean
