@@ -218,11 +218,10 @@ inline bool ImpactDetector::band_sample_general(BandState& s, double& e, std::si
 void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
   // count band samples from the run starting at b: one per D samples, at the last index of each. The
   // FIR outputs of a chunk of up to kGroup band samples are computed first in one pass (the taps stay
-  // in registers), the recursive part then runs over them. The band state lives in a local for the
-  // whole run (see BandState) and is written back before stage 4 runs.
+  // in registers), the recursive part then runs over them.
   const float* x = buf_x_.data() + (b - base_) + dec_ - taps_;  // the first step's FIR window
   const kernels::IqLowPass4Coefs lp(lp1_, lp2_);
-  BandState s = band_;
+  BandState& s = band_;
   for (std::size_t j0 = 0; j0 < count;) {
     // Chunks end at the phasor groups' boundaries (m a multiple of kGroup): the phasor of band sample
     // m depends on m only.
@@ -237,12 +236,10 @@ void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
       const std::size_t sub = sub_of_[j0 + j];
       if (!(fast ? band_sample_steady(s, e) : band_sample_general(s, e, sub))) continue;
       fast = false;
-      band_ = s;
       decide_band_sample(s.m - 1, e, scale_at_[sub]);
     }
     j0 += n_chunk;
   }
-  band_ = s;
 }
 
 }  // namespace ridgewatch::pipeline

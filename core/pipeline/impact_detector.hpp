@@ -234,10 +234,9 @@ class ImpactDetector {
   static constexpr std::size_t kMaxRunBlocks = 8;
   static constexpr double kModelZeta = 0.024;  // damping ratio of the onset model (the paper rig)
 
-  /// The trigger band's running state (stage 2b's filter, the demodulation phasor, stage 3's sums and
-  /// LTA): band_blocks() works on a local copy for a whole run and writes it back before the trigger
-  /// logic runs (stores into the energy history could otherwise alias it, and the compiler would reload
-  /// it for every band sample).
+  /// The trigger band's running state: stage 2b's filter, the demodulation phasor, stage 3's sums and
+  /// LTA. (Worked on in place: a local copy for a run, written back by hand, measured 2-3 % slower for
+  /// the detector alone; docs/performance.md.)
   struct BandState {
     dsp::kernels::IqLowPass4State lp;     // I/Q low-pass states
     std::complex<double> phasor{1.0, 0.0};  // demodulation phasor base of band sample m's group
