@@ -235,8 +235,7 @@ class ImpactDetector {
   static constexpr double kModelZeta = 0.024;  // damping ratio of the onset model (the paper rig)
 
   /// The trigger band's running state: stage 2b's filter, the demodulation phasor, stage 3's sums and
-  /// LTA. (Worked on in place: a local copy for a run, written back by hand, measured 2-3 % slower for
-  /// the detector alone; docs/performance.md.)
+  /// LTA. Worked on in place (a local copy per run did not pay: docs/performance.md).
   struct BandState {
     dsp::kernels::IqLowPass4State lp;     // I/Q low-pass states
     std::complex<double> phasor{1.0, 0.0};  // demodulation phasor base of band sample m's group
