@@ -9,19 +9,20 @@
 // samples (each band sample sees the scale as of its own block, as if the blocks ran one at a time;
 // the run only delays the decisions). Blocks and runs are aligned to the segment start, so the output
 // does not depend on how the caller splits the stream (bit-identical for any push pattern; tested).
-// All state is preallocated; push() never allocates (tested). Measured (bench/bench_pipeline
-// BM_DetectorOnly, detector alone, 51.2 kHz, one push per sample): ~2.4 ns per sample (1.24-1.26 ms
-// per 10 s against 1.40-1.44 ms in the same session before the per-run winsorisation limit, the float
-// demodulation, the vectorised re-sum, the steady path of band_blocks() and the one-pass spike stage;
-// bench_detector, one detector restarted: 2.2 against 2.8 ns per sample, spans 1.7 against 2.3 ns),
-// ~3.5 ns with one block per run (longer runs: ~8 % less at 3.2 ms, not worth their delay); 4 ns
-// before the vectorised kernels of decide_blocks() and band_blocks(), 13 ns for the former per-sample
-// chain. About a quarter of what is left is the caller's per-sample push() (a store and the write
-// pointer's increment through memory: ~0.3 ms per 10 s), a quarter the spike stage, the rest the band
-// loop (~180 instructions per band sample with its FIR, SSE2 two-operand code; throughput-bound: a
-// low-pass written so that its recursion is one product and one subtraction, STA/PRE updates as one
-// addition each, an LTA capped by its previous value, ring slots as plain pointers, a short path for
-// hold-offs, residual vectors aligned on the block's third sample did not pay).
+// All state is preallocated; push() never allocates (tested). Speed and its history:
+// docs/performance.md, section "Impact detector".
+//
+// Where each stage lives (one file per stage; the hot loops are named kernels in core/dsp/kernels/,
+// each with a scalar reference `<name>_generic` and an exactness test in tests/test_kernels_detector.cpp):
+//   impact_detector.cpp   construction (block, run and window sizes), push/finish, runs, band_power
+//   detector_spike.cpp    stage 1 (kernels spike_residual, clipped_sum)
+//   detector_band.cpp     stage 2 and the energy windows of stage 3 (kernels fir_steps,
+//                         phasor_rotate, iq_lowpass, ring_sum)
+//   detector_trigger.hpp  stage 3's LTA update and stage 4's trigger test, each written once
+//   detector_trigger.cpp  stage 4: trigger, start-up reference, confirmation
+//   detector_onset.cpp    stage 5: onset model calibration and refinement
+// tests/test_reference_detector.cpp holds a slow sample-by-sample implementation of this comment that
+// the fast detector must match on every bundled and generated record.
 //
 //  1. Spikes (isolated outliers). Residual of the 4-neighbour cubic interpolation
 //        r[n] = x[n] - (-x[n-2] + 4 x[n-1] + 4 x[n+1] - x[n+2]) / 6
@@ -39,11 +40,12 @@
 //     sequential isolation test. When the blocks are whole vectors of four (51.2 kHz at the defaults)
 //     and the scale is warm, the residuals, clipped sums and maxima of a run's blocks are computed in
 //     one pass, then tested and applied in order (after a block with a candidate, the rest of the run
-//     block by block: its spike test may correct the next block's first residuals). The MAD is a winsorised running mean of |r| (time constant lta_s,
-//     updated once per block with the block's mean of min(|r|, 3 mean)), converted with the Gaussian
+//     block by block: its spike test may correct the next block's first residuals).
+//     The MAD is a winsorised running mean of |r| (time constant lta_s, updated once per block with
+//     the block's mean of min(|r|, 3 mean)), converted with the Gaussian
 //     ratios MAD = 0.6745 sd, E|r| = 0.7979 sd. The winsorisation limit 3 mean is taken once per run
 //     (as of the run's start, once the scale is warm): the blocks' clipped sums then do not wait for
-//     each other's scale updates (a serial chain of ~60 cycles per block before); it lags the scale by
+//     each other's scale updates (no serial chain through the scale); it lags the scale by
 //     at most 1.2 ms against its time constant lta_s. The spike threshold uses the current scale.
 //     Decision delay: 12 samples (the isolation test reads residuals up to n + 10).
 //     Samples and residuals are float: the input is float32 already, and the residual's rounding
@@ -82,10 +84,10 @@
 //
 //  3. Energy e. STA = boxcar mean over sta_s (rounded to band samples); STA and PRE (stage 4) are
 //     running sums, re-summed from the history once per pre-window (41 band samples at the defaults) in
-//     four interleaved partial sums, so their rounding cannot accumulate (a 41-step addition chain
-//     before: ~4 % of the detector). Band samples that are armed, with full windows and a running LTA
-//     (most of them) take a short path chosen once per chunk of band samples, whose trigger pre-test
-//     is a little more permissive than stage 4's (folded constants, margin 1e-9); stage 4 decides. LTA = exponential mean (time
+//     four interleaved partial sums, so their rounding cannot accumulate. Band samples that are armed,
+//     with full windows and a running LTA (most of them) take a short path chosen once per chunk of
+//     band samples that skips the start-up and confirmation bookkeeping; it uses the same window
+//     update, LTA update and trigger test (detector_trigger.hpp). LTA = exponential mean (time
 //     constant lta_s; a cumulative mean at the start) of min(e, 3 LTA), frozen from a trigger to the end
 //     of its hold-off: an impact can raise it only slowly. For Gaussian noise the capped mean is 0.857
 //     of the power (E min(z^2, 3) = 0.857), which is divided out.
@@ -125,9 +127,8 @@
 //     destructively with its first cycles.) The onset is decided as soon as the running maximum is
 //     final: when it has not grown for 1 ms, or when the onset it implies lies the model's peak time +
 //     1 ms in the past; never before the confirmation. Worst-case delay from an onset to its report:
-//     report_delay_samples(), 11.1-11.3 ms at the defaults (9.7-9.8 ms with 0.4 ms runs; the
-//     per-sample design waited 13.9 ms); measured up to 8.5 ms. Measured onsets on the simulated
-//     rig: within 0.1-0.2 ms of the start of the 0.15 ms force pulse (up to 0.34 ms for an impact on
+//     report_delay_samples(), 11.1-11.3 ms at the defaults; measured up to 8.5 ms. Measured onsets on
+//     the simulated rig: within 0.1-0.2 ms of the start of the 0.15 ms force pulse (up to 0.34 ms for an impact on
 //     the start-up ring).
 #pragma once
 
@@ -138,34 +139,10 @@
 #include <span>
 #include <vector>
 
+#include "core/dsp/kernels/iq_lowpass.hpp"
+#include "core/pipeline/detector_config.hpp"
+
 namespace ridgewatch::pipeline {
-
-struct ImpactDetectorConfig;
-
-/// Transposed direct form II biquad (double), a0 normalised to 1.
-struct Biquad {
-  double b0 = 1, b1 = 0, b2 = 0, a1 = 0, a2 = 0;
-  double s1 = 0, s2 = 0;
-  double step(double x) {
-    const double y = b0 * x + s1;
-    s1 = (b1 * x + s2) - a1 * y;  // only a1 y - after y on the recursion's critical path
-    s2 = b2 * x - a2 * y;
-    return y;
-  }
-  /// States of a filter that has seen the constant input x forever.
-  void settle(double x);
-  static Biquad highpass(double f_hz, double q, double fs);
-  static Biquad lowpass(double f_hz, double q, double fs);
-};
-
-/// 4th-order Butterworth low-pass (two biquads).
-struct LowPass4 {
-  Biquad s1, s2;
-  double step(double x) { return s2.step(s1.step(x)); }
-  void reset() { s1.s1 = s1.s2 = s2.s1 = s2.s2 = 0.0; }
-  /// Sum of the squared impulse response.
-  double energy_gain() const;
-};
 
 class ImpactDetector {
  public:
@@ -211,7 +188,7 @@ class ImpactDetector {
   /// than 8 samples or its overlap with those stored band samples is.
   double band_power(std::uint64_t begin, std::uint64_t end) const;
   /// Robust noise floor: LTA (bias-corrected) of the band power.
-  double lta() const { return lta_ / kCapBias; }
+  double lta() const { return band_.lta / kCapBias; }
   /// E[e] for unit-variance white input (the squared impulse responses of the whole chain, summed
   /// over the block positions): divides a band power into the white-equivalent variance of the samples.
   double band_noise_gain() const { return band_noise_gain_; }
@@ -257,10 +234,41 @@ class ImpactDetector {
   static constexpr std::size_t kMaxRunBlocks = 8;
   static constexpr double kModelZeta = 0.024;  // damping ratio of the onset model (the paper rig)
 
+  /// The trigger band's running state: stage 2b's filter, the demodulation phasor, stage 3's sums and
+  /// LTA. Worked on in place (a local copy per run did not pay: docs/performance.md).
+  struct BandState {
+    dsp::kernels::IqLowPass4State lp;     // I/Q low-pass states
+    std::complex<double> phasor{1.0, 0.0};  // demodulation phasor base of band sample m's group
+    std::uint64_t m = 0;                  // band samples in this segment (decimated index of the next one)
+    double sta_sum = 0, pre_sum = 0;      // running sums of e over the STA window and the pre-window
+    std::size_t resum_left = 1;           // band samples until the sums are re-summed from the history
+    double lta = 0;                       // capped running mean of e (stage 3), not bias-corrected
+    std::uint64_t lta_count = 0;          // band samples the LTA has seen
+  };
+
+  // construction steps (impact_detector.cpp, detector_band.cpp, detector_onset.cpp)
+  void design_band(double fc_hz, double bw_hz);
+  void set_windows(const ImpactDetectorConfig& cfg, double bw_hz);
+  void measure_fill_up(double bw_hz);
+  void set_onset_timing(double fc_hz);
+  void allocate(std::size_t history_samples);
+
   void process_block();
   void decide_blocks(std::uint64_t b, std::size_t count);
   void decide_block(std::uint64_t b, std::size_t len, std::size_t n_res, bool test_spikes);
   void band_blocks(std::uint64_t b, std::size_t count);
+  void demodulate(const float* x, std::size_t n, std::size_t i0, std::complex<double>& phasor);
+  bool band_sample_steady(BandState& s, double e);
+  bool band_sample_general(BandState& s, double& e, std::size_t sub);
+  void push_energy(BandState& s, double e);
+  void resum(BandState& s) const;
+  bool steady(const BandState& s) const;
+  // detector_trigger.hpp: the LTA update and the trigger test, shared by every path.
+  double lta_next(double lta, double e, std::uint64_t count) const;
+  double trigger_reference(double lta, double rise_ref) const;
+  bool fires(double sta_sum, double lta, double rise_ref) const;
+  bool confirms(double mean_e) const;
+  double full_pre_mean(double pre_sum) const;
   void spike_test(std::uint64_t n, double t_mad);
   void decide_band_sample(std::uint64_t m, double e, double mad);
   void refine_and_emit(std::uint64_t trigger, std::uint64_t end);
@@ -294,7 +302,8 @@ class ImpactDetector {
   static constexpr std::size_t kGroup = 16;  // band samples per demodulation phasor base
   std::array<float, kGroup + 4> pw_re_{}, pw_im_{};  // e^{-i w D k}, k < kGroup (zero-padded)
   std::complex<double> rot_g_{1.0, 0.0};  // e^{-i w D kGroup}
-  // band_blocks() scratch: FIR outputs and demodulated values of a chunk (padded for vectors of four)
+  // band_blocks() scratch: FIR outputs and demodulated values of a chunk (padded for vectors of four,
+  // zeroed once: the vectors read past a chunk's end)
   std::array<float, kGroup + 4> fir_re_{}, fir_im_{}, z_re_{}, z_im_{};
   std::size_t sta_d_ = 1, lta_d_ = 1, holdoff_d_ = 0, confirm_d_ = 1, pre_d_ = 1;
   double inv_sta_d_ = 1, inv_pre_d_ = 1;
@@ -310,7 +319,7 @@ class ImpactDetector {
   std::size_t lookback_ = 1, report_delay_ = 1;
   double lta_alpha_ = 0, lta_keep_ = 1, lta_cap_alpha_ = 0, mad_beta_ = 0;
   double band_noise_gain_ = 1;
-  LowPass4 proto_;  // designed low-pass (zero state)
+  dsp::kernels::BiquadCoefs lp1_, lp2_;  // the 4th-order Butterworth low-pass's two stages
 
   // input buffer: sample n at buf_[n - base_] (unsigned, wraps consistently)
   std::vector<float> buf_x_, buf_r_;    // raw (then cleaned) samples and their residuals (float: see 1.)
@@ -327,16 +336,10 @@ class ImpactDetector {
   bool run_clip_ready_ = false;
   std::array<double, kMaxRunBlocks> scale_at_{};  // mad_sum_ after each block of the current run
   std::array<bool, kMaxRunBlocks> scale_ready_{};  // ... and whether it had seen kMadWarmup samples
-  LowPass4 lp_i_, lp_q_;
-  std::complex<double> phasor_{1.0, 0.0};  // demodulation phasor base of band_count_'s group
+  BandState band_;
 
   std::vector<double> e_hist_;   // trigger-band power history, by decimated index & mask
   std::uint64_t e_mask_ = 0;
-  double sta_sum_ = 0, pre_sum_ = 0;
-  std::uint64_t band_count_ = 0;  // band samples in this segment (decimated index of the next one)
-  std::size_t resum_left_ = 1;
-  double lta_ = 0;
-  std::uint64_t lta_count_ = 0;
   bool lta_raised_ = false;  // the start-up raise to the white-noise band power has been done
   std::uint64_t holdoff_end_ = 0, lta_frozen_until_ = 0;
   bool confirming_ = false;
