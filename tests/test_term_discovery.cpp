@@ -1,7 +1,7 @@
 // Term discovery (core/diagnosis/term_discovery.hpp, issue 14 item 3) on records of the independent
 // generator (tests/support/indep_gear.hpp: its own integrator, Hann pulse and noise; no code shared
 // with core/model):
-//  * hidden cubic damping (out of the catalogue): diagnose with the catalogue only accepts no
+//  * hidden cubic damping (out of the catalogue; 15 s CPU, release only): diagnose with the catalogue only accepts no
 //    catalogue effect alone (none, or flagged ambiguous with the discovered force), reports unexplained
 //    residual and proposes a force containing v³ with the right sign; the proposal pasted into a rig
 //    file (the real CLI: `diagnose --json` then `compare --with discovered_force`) ends with a held-out
@@ -85,7 +85,6 @@ TEST(TermDiscovery, ControlGivesNoProposal) {
   EXPECT_LT(std::abs(r.heldout_excess_before), 0.1);
 }
 
-#ifndef RIDGEWATCH_SANITIZED
 // A mesh stiffness drifting over the record (+0.4 %/s of c0, out of the catalogue; frequency drift):
 // the term t_abs·x with a negative coefficient (a restoring force growing with time). Truth:
 // -0.004 c0 = -3.2e6 N/(m s); the first-order estimate is allowed a factor 2 (it is a start for
@@ -101,19 +100,22 @@ TEST(TermDiscovery, StiffnessDriftGivesTimeTimesDeflection) {
   EXPECT_LT(t->coefficient, -0.5 * 3.216e6);
   EXPECT_GT(t->coefficient, -2.0 * 3.216e6);
 }
-#endif
 
-// Hidden cubic damping (2e9 N s³/m³), end to end through the CLI as a user would: diagnose proposes
+#ifndef RIDGEWATCH_SANITIZED
+
+// Hidden cubic damping (7e8 N s³/m³: at the impact's peak velocity 3.5x the linear damping force), end to end through the CLI as a user would: diagnose proposes
 // a v³ term; the YAML it prints, pasted into the rig file, makes compare's held-out excess < 0.1.
 TEST(TermDiscovery, CubicDampingProposalPastedMakesTheErrorFall) {
-  const auto rec = ig::generate(settings(ig::Hidden::kCubicDamping, 2e9, 2));
+  const auto rec = ig::generate(settings(ig::Hidden::kCubicDamping, 7e8, 2));
   const auto dir = std::filesystem::temp_directory_path() / ("ridgewatch-term-discovery-" + std::to_string(::getpid()));
   std::filesystem::create_directories(dir);
   const std::string wav = (dir / "cubic.wav").string();
   indep::write_wav_mono(wav, rec.y, kRate, indep::SampleFormat::float32);
   const std::string rig = std::string(RIDGEWATCH_SOURCE_DIR) + "/config/rigs/paper-rig.yaml";
 
-  const auto d = ridgewatch::test::run_cli({"diagnose", "--rig", rig, wav, "--json", "--quiet"});
+  // 8 impacts (4 fitted, 4 held out): half the time of the default 16, and the v³ term still passes
+  // every gate at this size.
+  const auto d = ridgewatch::test::run_cli({"diagnose", "--rig", rig, wav, "--json", "--quiet", "--max-impacts", "8"});
   ASSERT_EQ(d.exit_code, 0) << d.err;
   const auto j = nlohmann::json::parse(d.out);
   EXPECT_TRUE(j["unexplained"]["present"].get<bool>());
@@ -146,6 +148,7 @@ TEST(TermDiscovery, CubicDampingProposalPastedMakesTheErrorFall) {
   ASSERT_EQ(after.exit_code, 0) << after.err;
   const double ex_before = nlohmann::json::parse(before.out)["heldout_excess"].get<double>();
   const double ex_after = nlohmann::json::parse(after.out)["heldout_excess"].get<double>();
-  EXPECT_GT(ex_before, 0.5);  // the linear model leaves clear structure (measured ~6 at this size)
+  EXPECT_GT(ex_before, 0.5);  // the linear model leaves clear structure (4.3 on the README walkthrough)
   EXPECT_LT(ex_after, 0.1);   // the acceptance target: nothing left above the noise
 }
+#endif
