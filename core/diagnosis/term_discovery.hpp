@@ -24,10 +24,11 @@
 // scale-free threshold): fit all terms on the training impacts, drop the term with the smallest
 // |coefficient / standard error| while it is below `t_threshold`, refit, repeat (one term per pass,
 // because the library's odd terms in v are strongly correlated). Then every surviving term must earn
-// its place on the held-out impacts: removed (weakest first) unless the held-out residual power grows
-// by more than one standard error without it. The whole proposal must pass diagnose's gain gate
-// (held-out excess lower by 3 standard errors). Held-out nuisances are refitted with the terms frozen,
-// as in the fit's own held-out judgement.
+// its place on the held-out impacts: removed (weakest first) unless the held-out excess grows by more
+// than `term_gate_se` (3) standard errors without it. The whole proposal must pass diagnose's gain
+// gate (held-out excess lower by 3 standard errors). Held-out nuisances are refitted with the terms
+// frozen, as in the fit's own held-out judgement. Being first order, the proposal is then refitted by
+// the nonlinear fitter (verify_proposal) before diagnose reports it.
 #pragma once
 
 #include <limits>
