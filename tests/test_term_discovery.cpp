@@ -65,7 +65,7 @@ const rd::DiscoveredTerm* find_term(const std::vector<rd::DiscoveredTerm>& terms
   return nullptr;
 }
 
-std::string paper_rig_without_model() {
+[[maybe_unused]] std::string paper_rig_without_model() {  // unused in sanitizer builds (the CLI case is release only)
   std::ifstream f(std::string(RIDGEWATCH_SOURCE_DIR) + "/config/rigs/paper-rig.yaml");
   std::ostringstream s;
   s << f.rdbuf();
