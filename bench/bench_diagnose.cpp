@@ -11,6 +11,10 @@
 //                                        core/model): confusion matrix of the verdicts
 //   bench_diagnose custom [cubic|drift] [seeds]   out-of-catalogue effects of the independent generator
 //                                        with the matching user-defined effect as a candidate
+//   bench_diagnose discover [seeds] [case] [duration_s] [rate]   term discovery (term_discovery.hpp) on
+//                                        the independent generator's cases: verdict, proposal, gain
+//   bench_diagnose discover-time         10 s at 51.2 kHz with hidden cubic damping (independent
+//                                        generator): diagnose including term discovery, wall and CPU s
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -367,6 +371,89 @@ int custom_indep(const std::string& which, int seeds) {
   return 0;
 }
 
+/// Term discovery on the independent generator's records: diagnose with the catalogue only; where it
+/// ends unexplained, the proposed terms (README "Term discovery").
+int discover_sweep(int seeds, const std::string& only, double duration, double rate) {
+  namespace ig = ridgewatch::testsupport::indep;
+  std::printf("| hidden | seed | verdict | unexplained | excess | proposed force | held-out excess before -> after (linearised) | s |\n|---|---|---|---|---|---|---|---|\n");
+  for (const auto& c : ig::sweep_cases()) {
+    if (!only.empty() && c.name != only) continue;
+    for (int seed = 1; seed <= seeds; ++seed) {
+      ig::Settings st = c.settings;
+      st.seed = static_cast<std::uint64_t>(seed) * 104729u + 17u;
+      st.duration_s = duration;
+      st.sample_rate_hz = rate;
+      const auto t0 = std::chrono::steady_clock::now();
+      const auto rec = ig::generate(st);
+      rm::RigParameters rig;
+      rig.crack_angle_rad = 1.0;
+      rig.load_torque_n_m = st.load_torque_n_m;
+      const auto seg = rd::subset_windows(rd::segment_recording(rec.y, rate, rig), 16);
+      const rd::ModelFitter fitter(rec.y, seg, rig);
+      const auto res = rd::diagnose(fitter, {});
+      const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      std::string acc;
+      for (const auto& v : res.verdict) acc += (acc.empty() ? "" : "+") + v;
+      std::string terms;
+      for (const auto& t : res.proposal.terms) {
+        char buf[128];
+        std::snprintf(buf, sizeof buf, "%s%.3g·%s", terms.empty() ? "" : " ", t.coefficient, t.term.c_str());
+        terms += buf;
+      }
+      std::printf("| %s | %d | %s | %s | %.3g -> %.3g | %s | %.3g -> %.3g | %.1f |\n", c.name.c_str(), seed,
+                  acc.empty() ? "none" : acc.c_str(), res.unexplained ? "yes" : "no", res.baseline_excess, res.final_excess,
+                  res.proposal.proposed ? terms.c_str() : (res.discovery_run ? ("none: " + res.proposal.note + (terms.empty() ? "" : " [" + terms + "]")).c_str() : "-"),
+                  res.proposal.heldout_excess_before, res.proposal.heldout_excess_after, secs);
+      if (std::getenv("RW_DISCOVER_LINEAR") != nullptr) {
+        // Term discovery on the linear model's fit (what diagnose does from the starting model).
+        const auto base = fitter.fit({});
+        auto lin = rd::discover_terms(fitter, base);
+        rd::verify_proposal(fitter, base, lin);
+        std::printf("|   from the linear model | | | | | %s%s |", lin.proposed ? "" : "(not proposed) ", lin.note.c_str());
+        for (const auto& t : lin.terms) std::printf(" %.3g·%s (sd %.2g, gain %.3g)", t.coefficient, t.term.c_str(), t.sd, t.heldout_loss);
+        std::printf(" | %.3g -> %.3g (fitted %.3g) | |\n", lin.heldout_excess_before, lin.heldout_excess_after, lin.verified_excess);
+        std::fflush(stdout);
+      }
+    }
+  }
+  return 0;
+}
+
+/// Timing of diagnose with term discovery: 10 s at 51.2 kHz, cubic damping 7e8 N s³/m³ hidden (the
+/// catalogue approximates it, so both discoveries and both verifying refits run), 16 impacts.
+int discover_timing() {
+  namespace ig = ridgewatch::testsupport::indep;
+  ig::Settings st;
+  st.hidden = ig::Hidden::kCubicDamping;
+  st.size = 7e8;
+  st.sample_rate_hz = 51200.0;
+  st.duration_s = 10.0;
+  st.noise_rel = 0.01;
+  st.seed = 4;
+  const auto rec = ig::generate(st);
+  rm::RigParameters rig;
+  rig.crack_angle_rad = 1.0;
+  const auto t0 = std::chrono::steady_clock::now();
+  const double c0 = cpu_seconds();
+  const auto seg = rd::subset_windows(rd::segment_recording(rec.y, st.sample_rate_hz, rig), 16);
+  const rd::ModelFitter fitter(rec.y, seg, rig);
+  double t_disc = 0.0;
+  std::chrono::steady_clock::time_point t_start_disc;
+  rd::DiagnoseOptions opt;
+  opt.progress = [&](const std::string& line) {
+    if (line.rfind("term discovery on the final", 0) == 0) t_start_disc = std::chrono::steady_clock::now();
+    if (line.rfind("term discovery:", 0) == 0) t_disc = std::chrono::duration<double>(std::chrono::steady_clock::now() - t_start_disc).count();
+  };
+  const auto res = rd::diagnose(fitter, {}, opt);
+  const double wall = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  std::string acc;
+  for (const auto& v : res.verdict) acc += (acc.empty() ? "" : ",") + v;
+  std::printf("| diagnose + term discovery, 10 s at 51.2 kHz, %zu of the impacts (verdict %s, proposed %s, excess %.3g -> %.3g, fitted with the proposal %.3g) | wall %.2f s | CPU %.2f s | of which term discovery and its refits %.2f s |\n",
+              seg.windows.size(), acc.empty() ? "none" : acc.c_str(), res.proposal.proposed ? res.proposal.force.c_str() : "nothing",
+              res.baseline_excess, res.final_excess, res.proposal.verified_excess, wall, cpu_seconds() - c0, t_disc);
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -378,6 +465,10 @@ int main(int argc, char** argv) {
   if (mode == "indep")
     return indep_sweep(argc > 2 ? std::atoi(argv[2]) : 3, argc > 3 ? argv[3] : "", argc > 4 ? std::atof(argv[4]) : 2.0,
                        argc > 5 ? std::atof(argv[5]) : 1.0, argc > 6 ? std::atof(argv[6]) : 51200.0);
+  if (mode == "discover-time") return discover_timing();
+  if (mode == "discover")
+    return discover_sweep(argc > 2 ? std::atoi(argv[2]) : 2, argc > 3 ? argv[3] : "cubic_damping", argc > 4 ? std::atof(argv[4]) : 2.0,
+                          argc > 5 ? std::atof(argv[5]) : 25600.0);
   if (mode == "one" && argc > 4) return one(argv[2], std::atof(argv[3]), std::atoi(argv[4]));
   return timing();
 }

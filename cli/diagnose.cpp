@@ -27,6 +27,58 @@ namespace {
 
 std::string g(double v, int d = 3) { return diagnosis::format_number(v, d); }
 
+/// The proposed effect as a rig-file block (model.custom_effects, cli/rig_yaml.cpp reads it back).
+std::string proposal_yaml(const diagnosis::TermDiscoveryResult& p) {
+  std::ostringstream y;
+  y << "model:\n  custom_effects:\n    - name: " << p.definition.name << "\n      force: \"" << p.definition.force
+    << "\"\n      parameters:\n";
+  for (const auto& q : p.definition.parameters)
+    y << "        " << q.key << ": {unit: \"" << q.unit << "\", min: 0, max: " << g(q.max_value, 6)
+      << ", default: " << g(q.default_value, 6) << ", null: 0}\n";
+  return y.str();
+}
+
+nlohmann::json proposal_json(const diagnosis::DiagnoseResult& r, const std::string& yaml) {
+  if (!r.discovery_run) return nullptr;
+  const auto& p = r.proposal;
+  nlohmann::json terms = nlohmann::json::array();
+  for (const auto& t : p.terms)
+    terms.push_back({{"term", t.term}, {"parameter", t.parameter}, {"unit", t.unit}, {"coefficient", t.coefficient},
+                     {"sd", t.sd}, {"linear_estimate", t.linear_coefficient}, {"heldout_gain", t.heldout_loss}});
+  return {{"present", p.proposed},
+          {"yaml", p.proposed ? nlohmann::json(yaml) : nlohmann::json(nullptr)},
+          {"effect", p.definition.name},
+          {"force", p.force},
+          {"terms", terms},
+          {"base_effects", p.base_effects},
+          {"heldout_excess_before", p.heldout_excess_before},
+          {"heldout_excess_after", p.heldout_excess_after},
+          {"heldout_gain", p.heldout_gain},
+          {"heldout_excess_fitted", std::isfinite(p.verified_excess) ? nlohmann::json(p.verified_excess) : nlohmann::json(nullptr)},
+          {"required_gain", p.required_gain},
+          {"note", p.note}};
+}
+
+/// Text of the proposal: the terms, the gain and the block to paste.
+void proposal_text(std::ostream& text, const diagnosis::DiagnoseResult& r, const std::string& yaml, const std::string& file) {
+  if (!r.discovery_run) return;
+  const auto& p = r.proposal;
+  if (!p.proposed) {
+    text << "term discovery: nothing proposed (" << p.note << ")\n";
+    return;
+  }
+  text << "term discovery: a force from the term library explains the residual; held-out excess " << g(p.heldout_excess_before)
+       << " -> " << g(p.heldout_excess_after) << " to first order (gain " << g(p.heldout_gain) << ", gate "
+       << g(p.required_gain, 2) << "), " << g(p.verified_excess) << " fitted with the model\n";
+  for (const auto& t : p.terms)
+    text << "  " << t.term << ": " << g(t.coefficient, 4) << " " << t.unit << " (sd " << g(t.sd, 2) << "; first order "
+         << g(t.linear_coefficient, 3) << "), held-out gain " << g(t.heldout_loss) << " to first order\n";
+  text << "paste into the rig file (merge with an existing model: section), then run\n  ridgewatch compare --rig RIG.yaml "
+       << file;
+  for (const auto& e : p.base_effects) text << " --with " << e;
+  text << " --with " << p.definition.name << "\n" << yaml;
+}
+
 }  // namespace
 
 int run_diagnose(const std::vector<std::string>& argv, std::ostream& out, std::ostream& err) {
@@ -88,6 +140,8 @@ int run_diagnose(const std::vector<std::string>& argv, std::ostream& out, std::o
                       {"unexplained", {{"present", r.unexplained}, {"where", r.unexplained_where}}},
                       {"sensor_problems", r.sensor_problems}};
 
+  const std::string yaml = r.proposal.proposed ? proposal_yaml(r.proposal) : std::string();
+  j["proposed"] = proposal_json(r, yaml);
   const auto undescribed = diagnosis::description_problems(fitter, r.final_fit, r.final_report);
   j["describable"] = undescribed.empty();
   j["not_describable_because"] = undescribed;
@@ -134,6 +188,7 @@ int run_diagnose(const std::vector<std::string>& argv, std::ostream& out, std::o
   if (!r.ambiguous.empty()) text << "ambiguous: " << r.ambiguous_evidence << "\n";
   for (const auto& u : undescribed) text << "NOT DESCRIBED BY THE RIG: " << u << "\n";
   text << "unexplained structured residual: " << (r.unexplained ? r.unexplained_where : "none") << "\n";
+  proposal_text(text, r, yaml, l.path);
   for (const auto& p : r.sensor_problems) text << "sensor: " << p << "\n";
   if (!args.has("--json")) out << text.str();
   if (plot_dir) {

@@ -21,6 +21,7 @@
 
 #include "core/diagnosis/model_fit.hpp"
 #include "core/diagnosis/residual_analysis.hpp"
+#include "core/diagnosis/term_discovery.hpp"
 
 namespace ridgewatch::diagnosis {
 
@@ -49,6 +50,9 @@ struct DiagnoseOptions {
   /// Called with one line per stage (each candidate fit, each round's outcome) for progress reports;
   /// the caller decides where it goes (the CLI: stderr). Empty: silent.
   std::function<void(const std::string&)> progress;
+  /// Term discovery (term_discovery.hpp) when the loop ends with structured residual left.
+  bool discover_terms = true;
+  TermDiscoveryOptions discovery;
 };
 
 struct DiagnoseResult {
@@ -77,6 +81,9 @@ struct DiagnoseResult {
     ResidualReport report;
   };
   std::vector<Round> rounds;
+  /// Term discovery on the final model's residual, run when `unexplained` (else empty, proposed false).
+  bool discovery_run = false;
+  TermDiscoveryResult proposal;
 };
 
 DiagnoseResult diagnose(const ModelFitter& fitter, const std::vector<std::string>& initial_effects,

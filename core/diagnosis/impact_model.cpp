@@ -357,20 +357,22 @@ using Vec = std::array<double, 4>;  // x, v, p, pd
 }  // namespace
 
 void WindowSimulator::simulate(std::uint64_t first, std::size_t n, const Impact& imp, const ModelState& carry,
-                               double* out, End& end) const {
+                               double* out, End& end, std::vector<TraceSample>* trace) const {
+  if (trace != nullptr) trace->clear();
   try {
-    simulate_unguarded(first, n, imp, carry, out, end);
+    simulate_unguarded(first, n, imp, carry, out, end, trace);
   } catch (const std::domain_error&) {
     // A user-defined force left its finite range (the response diverged at parameters the optimiser
     // tried): a window of 1e10 output units, far worse than any fit, so that LM rejects the step
     // instead of the whole run stopping; a final fit there fails every gate.
     for (std::size_t i = 0; i < n; ++i) out[i] = 1e10;
     end = End{};
+    if (trace != nullptr) trace->assign(n, TraceSample{});
   }
 }
 
 void WindowSimulator::simulate_unguarded(std::uint64_t first, std::size_t n, const Impact& imp, const ModelState& carry,
-                                         double* out, End& end) const {
+                                         double* out, End& end, std::vector<TraceSample>* trace) const {
   const double t_begin = static_cast<double>(first) / fs_;
   const double omega = kTwoPi * imp.mesh_hz;
   const Steady ss = mesh_forcing_ ? steady_state(imp.mesh_hz) : Steady{};
@@ -547,12 +549,20 @@ void WindowSimulator::simulate_unguarded(std::uint64_t first, std::size_t n, con
   // static force at every later step, so the rest of the window is the current output (this skips
   // most of a friction model's windows and carried gaps).
   const bool can_freeze = !mesh_forcing_ && !has_aux_;
+  auto record = [&](double ts, const Vec& st) {
+    if (trace != nullptr)
+      trace->push_back({st[0], st[1], physics_.mesh_phase_rad + omega * (ts - imp.onset_s), since_impact(ts), ts});
+  };
   for (std::size_t i = 0; i < n; ++i) {
     const double t_sample = t_begin + static_cast<double>(i) / fs_;
     out[i] = imp.polarity * output(t_sample, s);
+    record(t_sample, s);
     if (i + 1 == n) break;
     if (stuck && can_freeze && (imp.force_n == 0.0 || t_sample >= imp.onset_s + pulse_s_)) {
-      for (std::size_t j = i + 1; j < n; ++j) out[j] = out[i];
+      for (std::size_t j = i + 1; j < n; ++j) {
+        out[j] = out[i];
+        record(t_begin + static_cast<double>(j) / fs_, s);
+      }
       t = t_begin + static_cast<double>(n - 1) / fs_;
       break;
     }

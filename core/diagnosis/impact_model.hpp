@@ -86,6 +86,12 @@ struct ModelState {
   double x = 0.0, v = 0.0, p = 0.0, pd = 0.0;
 };
 
+/// The model's mesh state at one output sample (the variables of a user-defined force, custom_effect.hpp):
+/// x (m, dynamic deflection), v (m/s), θ_z (rad), time since the latest impact and since the record start (s).
+struct TraceSample {
+  double x = 0.0, v = 0.0, theta = 0.0, t = 0.0, t_abs = 0.0;
+};
+
 class WindowSimulator {
  public:
   /// Throws std::invalid_argument if an effect rejects its values.
@@ -107,9 +113,10 @@ class WindowSimulator {
 
   /// Simulates samples [first, first + n) (absolute sample indices) into out[0..n). `carry` is the
   /// free transient of the previous impact at the window start (zero if none). A user-defined force
-  /// that turns non-finite gives a window of 1e10 (see the .cpp).
+  /// that turns non-finite gives a window of 1e10 (see the .cpp). `trace` (optional) receives the
+  /// mesh state at each of the n samples (term discovery, term_discovery.hpp).
   void simulate(std::uint64_t first, std::size_t n, const Impact& impact, const ModelState& carry,
-                double* out, End& end) const;
+                double* out, End& end, std::vector<TraceSample>* trace = nullptr) const;
 
   /// Closed-form free decay of a transient over dt seconds (both modes linear, Eq. A2 with constant ζ).
   ModelState propagate(const ModelState& s, double dt_s, double t_abs_s) const;
@@ -124,7 +131,7 @@ class WindowSimulator {
   };
   Steady steady_state(double mesh_hz) const;
   void simulate_unguarded(std::uint64_t first, std::size_t n, const Impact& impact, const ModelState& carry,
-                          double* out, End& end) const;
+                          double* out, End& end, std::vector<TraceSample>* trace) const;
   /// Δc(θ), e(θ), de/dθ summed over the effects (phasors when exact, else the effects' hooks).
   /// `dcs`: the static part of Δc (multiplies q_s; equal to dc unless an effect relieves it).
   void mesh_terms(double th, double& dc, double& e, double& de, double& dcs) const;

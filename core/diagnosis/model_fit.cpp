@@ -160,10 +160,40 @@ ModelState ModelFitter::carry(const WindowSimulator& sim, std::size_t w, const C
 }
 
 void ModelFitter::simulate_window(const WindowSimulator& sim, std::size_t w, const FitParams& p, const Chain& c,
-                                  std::vector<double>& out, WindowSimulator::End& end) const {
+                                  std::vector<double>& out, WindowSimulator::End& end,
+                                  std::vector<TraceSample>* trace) const {
   const auto& win = seg_.windows[w];
   out.resize(win.end - win.begin);
-  sim.simulate(win.begin, out.size(), impact(w, p), carry(sim, w, c), out.data(), end);
+  sim.simulate(win.begin, out.size(), impact(w, p), carry(sim, w, c), out.data(), end, trace);
+}
+
+ModelFitter::Linearisation ModelFitter::linearise(const FitResult& fit) const {
+  const WindowSimulator sim(rig_, physics(fit.layout, fit.params.u), seg_.sample_rate_hz);
+  const std::size_t nw = seg_.windows.size();
+  Linearisation lin;
+  lin.states.resize(nw);
+  lin.d_ln_force.resize(nw);
+  lin.d_shift.resize(nw);
+  Chain c;
+  c.out.resize(nw);
+  c.end.resize(nw);
+  std::vector<double> m;
+  WindowSimulator::End end;
+  for (std::size_t w = 0; w < nw; ++w) {
+    simulate_window(sim, w, fit.params, c, c.out[w], c.end[w], &lin.states[w]);
+    // The steps of FitProblem::df: 1e-6 in ln F, 1e-4 samples of onset.
+    for (int which = 0; which < 2; ++which) {
+      FitParams q = fit.params;
+      const double h = which == 0 ? 1e-6 : 1e-4;
+      if (which == 0) q.ln_force[w] += h;
+      else q.shift[w] += h;
+      simulate_window(sim, w, q, c, m, end);
+      auto& d = which == 0 ? lin.d_ln_force[w] : lin.d_shift[w];
+      d.resize(m.size());
+      for (std::size_t i = 0; i < m.size(); ++i) d[i] = (m[i] - c.out[w][i]) / h;
+    }
+  }
+  return lin;
 }
 
 ModelFitter::Chain ModelFitter::evaluate(const std::vector<GlobalParameter>& layout, const FitParams& p) const {
@@ -458,13 +488,10 @@ bool ModelFitter::onset_grid(const WindowSimulator& sim, std::size_t w, const Fi
   return std::isfinite(best);
 }
 
-FitResult ModelFitter::fit(const std::vector<std::string>& effects, const FitResult* warm,
-                           const std::vector<std::pair<std::string, double>>& start_overrides) const {
-  FitResult res;
-  res.effects = effects;
-  res.layout = layout(effects);
-  const auto& L = res.layout;
-  FitParams p;
+bool ModelFitter::start_values(const std::vector<GlobalParameter>& L, const FitResult* warm,
+                               const std::vector<std::pair<std::string, double>>& start_overrides, FitParams& p) const {
+  // Start values: the rig's ζ and c0, the candidates' starts, the user's settings; then a warm
+  // start's values by name and the overrides. Returns whether the mesh phase came from `warm`.
   p.u = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(L.size()));
   bool phase_known = false;
   for (std::size_t i = 0; i < L.size(); ++i) {
@@ -497,43 +524,11 @@ FitResult ModelFitter::fit(const std::vector<std::string>& effects, const FitRes
   } else {
     initialise_nuisances(p, L);
   }
+  return phase_known;
+}
 
-  const std::size_t nw = seg_.windows.size();
-  FitProblem train;
-  train.fitter = this;
-  train.layout = L;
-  for (std::size_t w = 0; w < nw; ++w)
-    if (!is_heldout(w)) {
-      train.free_windows.push_back(w);
-      train.row_windows.push_back(w);
-    }
-  // Budget: 40 Jacobians' worth of evaluations is ample for this smooth problem (typically 5–15 LM
-  // steps) and bounds the time of a pathological candidate.
-  const int budget = 40 * (train.inputs() + 1);
-
-  // Mesh phase φ_z: the fit is periodic and multimodal in it; start from the best of four phases.
-  std::size_t phase_index = L.size();
-  for (std::size_t i = 0; i < L.size(); ++i)
-    if (L[i].name == "mesh_phase_rad") phase_index = i;
-  if (phase_index < L.size() && !phase_known) {
-    double best = INFINITY;
-    FitParams best_p = p;
-    for (int k = 0; k < 4; ++k) {
-      FitParams q = p;
-      q.u[static_cast<Eigen::Index>(phase_index)] = k * std::numbers::pi / 2.0 - std::numbers::pi * 0.75;
-      train.base = q;
-      run_lm(train, q, 8 * (train.inputs() + 1));
-      const double c2 = chi2_of(train, q);
-      if (c2 < best) {
-        best = c2;
-        best_p = q;
-      }
-    }
-    p = best_p;
-  }
-  train.base = p;
-  res.converged = run_lm(train, p, budget);
-  train.base = p;
+void ModelFitter::restart_bad_windows(FitProblem& train, FitParams& p, int budget, FitResult& res) const {
+  const auto& L = res.layout;
   // Training windows left well above the noise (2x its power) may sit in a wrong onset basin: their
   // start came from the grid at the starting physics (a Duffing start far from the truth, say). Each
   // is restarted from the onset grid at the fitted physics if that fits it better, then LM again.
@@ -572,7 +567,10 @@ FitResult ModelFitter::fit(const std::vector<std::string>& effects, const FitRes
       train.base = p;
     }
   }
+}
 
+void ModelFitter::training_statistics(const FitProblem& train, const FitParams& p, FitResult& res) const {
+  const auto& L = res.layout;
   // Training statistics, covariance from the Jacobian at the optimum.
   {
     Eigen::VectorXd f(train.rows);
@@ -621,7 +619,10 @@ FitResult ModelFitter::fit(const std::vector<std::string>& effects, const FitRes
       }
     }
   }
+}
 
+void ModelFitter::heldout_refit(const std::vector<GlobalParameter>& L, FitParams& p) const {
+  const std::size_t nw = seg_.windows.size();
   // Held-out: physics frozen, every impact's nuisances refitted (so the carried tails are right),
   // error on held-out rows only. Window by window in time order, each with its predecessor's final
   // tail: the nuisances of a window reach the next one only through that small tail, so this is the
@@ -667,6 +668,11 @@ FitResult ModelFitter::fit(const std::vector<std::string>& effects, const FitRes
       simulate_window(sim, w, p, chain, chain.out[w], chain.end[w]);
     }
   }
+}
+
+void ModelFitter::heldout_statistics(const FitParams& p, FitResult& res) const {
+  const auto& L = res.layout;
+  const std::size_t nw = seg_.windows.size();
   res.params = p;
   const Chain c = evaluate(L, p);
   res.model = c.out;
@@ -696,6 +702,59 @@ FitResult ModelFitter::fit(const std::vector<std::string>& effects, const FitRes
   res.heldout_excess = sum_n > 0.0 ? sum_r2 / sum_n / var - 1.0 : 0.0;
   const double ss_tot = sum_y2 - (sum_n > 0.0 ? sum_y * sum_y / sum_n : 0.0);
   res.fit_percent = ss_tot > 0.0 ? 100.0 * (1.0 - std::sqrt(sum_r2 / ss_tot)) : 0.0;
+}
+
+FitResult ModelFitter::fit(const std::vector<std::string>& effects, const FitResult* warm,
+                           const std::vector<std::pair<std::string, double>>& start_overrides) const {
+  FitResult res;
+  res.effects = effects;
+  res.layout = layout(effects);
+  const auto& L = res.layout;
+  FitParams p;
+  const bool phase_known = start_values(L, warm, start_overrides, p);
+
+  const std::size_t nw = seg_.windows.size();
+  FitProblem train;
+  train.fitter = this;
+  train.layout = L;
+  for (std::size_t w = 0; w < nw; ++w)
+    if (!is_heldout(w)) {
+      train.free_windows.push_back(w);
+      train.row_windows.push_back(w);
+    }
+  // Budget: 40 Jacobians' worth of evaluations is ample for this smooth problem (typically 5–15 LM
+  // steps) and bounds the time of a pathological candidate.
+  const int budget = 40 * (train.inputs() + 1);
+
+  // Mesh phase φ_z: the fit is periodic and multimodal in it; start from the best of four phases.
+  std::size_t phase_index = L.size();
+  for (std::size_t i = 0; i < L.size(); ++i)
+    if (L[i].name == "mesh_phase_rad") phase_index = i;
+  if (phase_index < L.size() && !phase_known) {
+    double best = INFINITY;
+    FitParams best_p = p;
+    for (int k = 0; k < 4; ++k) {
+      FitParams q = p;
+      q.u[static_cast<Eigen::Index>(phase_index)] = k * std::numbers::pi / 2.0 - std::numbers::pi * 0.75;
+      train.base = q;
+      run_lm(train, q, 8 * (train.inputs() + 1));
+      const double c2 = chi2_of(train, q);
+      if (c2 < best) {
+        best = c2;
+        best_p = q;
+      }
+    }
+    p = best_p;
+  }
+  train.base = p;
+  res.converged = run_lm(train, p, budget);
+  train.base = p;
+  restart_bad_windows(train, p, budget, res);
+
+  training_statistics(train, p, res);
+
+  heldout_refit(L, p);
+  heldout_statistics(p, res);
   return res;
 }
 

@@ -31,6 +31,8 @@
 
 namespace ridgewatch::diagnosis {
 
+struct FitProblem;
+
 struct GlobalParameter {
   std::string name;    ///< "c0_n_per_m", "zeta", "mesh_phase_rad" or "<effect>.<key>"
   std::string effect;  ///< empty for c0, ζ, φ_z
@@ -114,14 +116,34 @@ class ModelFitter {
   /// Model output of every window for the given parameters.
   Chain evaluate(const std::vector<GlobalParameter>& layout, const FitParams& p) const;
 
+  /// What term discovery (term_discovery.hpp) needs from a fit, per window: the model's mesh state at
+  /// every sample (`states`) and the derivatives of the model output (sensor units) with respect to
+  /// the window's two nuisances, ln F (`d_ln_force`) and the onset shift in samples (`d_shift`), by
+  /// forward differences with the fit's own steps.
+  struct Linearisation {
+    std::vector<std::vector<TraceSample>> states;
+    std::vector<std::vector<double>> d_ln_force, d_shift;
+  };
+  Linearisation linearise(const FitResult& fit) const;
+
  private:
   friend struct FitProblem;
   friend struct WindowProblem;
   WindowSimulator::Impact impact(std::size_t w, const FitParams& p) const;
   ModelState carry(const WindowSimulator& sim, std::size_t w, const Chain& c) const;
   void simulate_window(const WindowSimulator& sim, std::size_t w, const FitParams& p, const Chain& c,
-                       std::vector<double>& out, WindowSimulator::End& end) const;
+                       std::vector<double>& out, WindowSimulator::End& end,
+                       std::vector<TraceSample>* trace = nullptr) const;
   void initialise_nuisances(FitParams& p, const std::vector<GlobalParameter>& layout) const;
+  // The steps of fit(): start values (returns whether the mesh phase came from `warm`), restarts of
+  // training windows in a wrong onset basin, training statistics and parameter estimates, the
+  // held-out refit of the nuisances with the physics frozen, and the held-out statistics.
+  bool start_values(const std::vector<GlobalParameter>& layout, const FitResult* warm,
+                    const std::vector<std::pair<std::string, double>>& start_overrides, FitParams& p) const;
+  void restart_bad_windows(FitProblem& train, FitParams& p, int budget, FitResult& res) const;
+  void training_statistics(const FitProblem& train, const FitParams& p, FitResult& res) const;
+  void heldout_refit(const std::vector<GlobalParameter>& layout, FitParams& p) const;
+  void heldout_statistics(const FitParams& p, FitResult& res) const;
   /// Best onset shift (grid) and force (projection) of window w at the given physics and tail.
   bool onset_grid(const WindowSimulator& sim, std::size_t w, const FitParams& p, const Chain& c, double& ln_force,
                   double& shift) const;

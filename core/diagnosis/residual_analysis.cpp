@@ -59,26 +59,12 @@ Backbone bin_cycles(const std::vector<Cycle>& all, double a_max) {
   return b;
 }
 
-}  // namespace
-
-ResidualReport analyse_residual(const ModelFitter& fitter, const FitResult& fit) {
-  ResidualReport rep;
+/// Residual vs time after the onset (1 ms bins) and per held-out impact.
+std::size_t residual_vs_time(const ModelFitter& fitter, const FitResult& fit, ResidualReport& rep) {
   const auto& seg = fitter.segmentation();
   const auto y = fitter.data();
   const double fs = seg.sample_rate_hz;
   const double sd = seg.noise_sd;
-  for (const auto& e : fit.estimates)
-    if (e.name == "c0_n_per_m") {
-      model::RigParameters r = fitter.rig();
-      r.mean_mesh_stiffness_n_per_m = e.value;
-      rep.f0_hz = r.natural_frequency_hz();
-    }
-  double fz = 0.0;
-  for (const auto& w : seg.windows) fz += w.mesh_hz;
-  rep.fz_hz = fz / static_cast<double>(seg.windows.size());
-  rep.spikes = seg.spikes.size();
-  rep.dropouts = seg.dropouts.size();
-
   // Residual vs time after onset (1 ms bins) and per impact.
   std::vector<double> tb_sum, tb_n;
   std::size_t max_len = 0;
@@ -104,7 +90,15 @@ ResidualReport analyse_residual(const ModelFitter& fitter, const FitResult& fit)
     }
   }
   for (std::size_t b = 0; b < tb_sum.size(); ++b) rep.excess_vs_time.push_back(tb_n[b] > 0 ? tb_sum[b] / tb_n[b] - 1.0 : kNaN);
+  return max_len;
+}
 
+/// Residual spectrum, markers, harmonic levels and lines (see inside).
+void residual_spectrum(const ModelFitter& fitter, const FitResult& fit, std::size_t max_len, ResidualReport& rep) {
+  const auto& seg = fitter.segmentation();
+  const auto y = fitter.data();
+  const double fs = seg.sample_rate_hz;
+  const double sd = seg.noise_sd;
   // Mean periodogram of the held-out residual windows, |Σ r_n e^{-iωn}|² / n in σ² units (1 = white
   // noise), on a grid of fs / (2 max_len) up to min(3 f0, 0.45 fs) by direct summation.
   const double df = fs / (2.0 * static_cast<double>(std::max<std::size_t>(max_len, 16)));
@@ -162,7 +156,13 @@ ResidualReport analyse_residual(const ModelFitter& fitter, const FitResult& fit)
   }
   std::sort(rep.peaks.begin(), rep.peaks.end(), [](const auto& a, const auto& b) { return a.level > b.level; });
   if (rep.peaks.size() > 8) rep.peaks.resize(8);
+}
 
+/// Whiteness of the held-out residual (Ljung–Box).
+void ljung_box(const ModelFitter& fitter, const FitResult& fit, ResidualReport& rep) {
+  const auto& seg = fitter.segmentation();
+  const auto y = fitter.data();
+  const double sd = seg.noise_sd;
   // Whiteness: Ljung–Box Q over lags 1..10 of the held-out residual (pooled within windows).
   {
     constexpr int kLags = 10;
@@ -187,7 +187,14 @@ ResidualReport analyse_residual(const ModelFitter& fitter, const FitResult& fit)
     rep.ljung_box_limit = 29.59;  // χ²(10) at 99.9 %
     rep.white = rep.ljung_box_q <= rep.ljung_box_limit;
   }
+}
 
+/// Measured and model backbones of the held-out impacts (see inside).
+void backbones(const ModelFitter& fitter, const FitResult& fit, ResidualReport& rep) {
+  const auto& seg = fitter.segmentation();
+  const auto y = fitter.data();
+  const double fs = seg.sample_rate_hz;
+  const double sd = seg.noise_sd;
   // Backbones of the held-out impacts, measured and model, cycles above 5 σ (a decrement from cycles
   // nearer the noise is biased by it).
   std::vector<Cycle> meas, mod;
@@ -230,6 +237,29 @@ ResidualReport analyse_residual(const ModelFitter& fitter, const FitResult& fit)
     rep.model = bin_cycles(mod, a_max * 1.0000001);
     rep.measured.amplitude_max = rep.model.amplitude_max = a_max;
   }
+}
+
+}  // namespace
+
+ResidualReport analyse_residual(const ModelFitter& fitter, const FitResult& fit) {
+  ResidualReport rep;
+  const auto& seg = fitter.segmentation();
+  for (const auto& e : fit.estimates)
+    if (e.name == "c0_n_per_m") {
+      model::RigParameters r = fitter.rig();
+      r.mean_mesh_stiffness_n_per_m = e.value;
+      rep.f0_hz = r.natural_frequency_hz();
+    }
+  double fz = 0.0;
+  for (const auto& w : seg.windows) fz += w.mesh_hz;
+  rep.fz_hz = fz / static_cast<double>(seg.windows.size());
+  rep.spikes = seg.spikes.size();
+  rep.dropouts = seg.dropouts.size();
+
+  const std::size_t max_len = residual_vs_time(fitter, fit, rep);
+  residual_spectrum(fitter, fit, max_len, rep);
+  ljung_box(fitter, fit, rep);
+  backbones(fitter, fit, rep);
   return rep;
 }
 

@@ -18,17 +18,9 @@ double median(std::vector<double> v) {
   return *mid;
 }
 
-}  // namespace
-
-Segmentation segment_recording(std::span<const double> y, double fs, const model::RigParameters& rig,
-                               const SegmentationOptions& opt) {
-  Segmentation seg;
-  seg.sample_rate_hz = fs;
-  const std::size_t n = y.size();
-  seg.weight.assign(n, 1.0);
-
-  // 1. Onsets: the pipeline's detector with its trigger band centred on the rig's model f0 (+-15 %,
-  //    the pipeline's default width relative to 854 Hz).
+/// 1. Onsets: the pipeline's detector with its trigger band centred on the rig's model f0 (+-15 %,
+///    the pipeline's default width relative to 854 Hz).
+std::vector<std::uint64_t> detect_onsets(std::span<const double> y, double fs, const model::RigParameters& rig) {
   const double f0 = rig.natural_frequency_hz();
   pipeline::PipelineConfig pc;
   pc.sample_rate_hz = fs;
@@ -40,35 +32,42 @@ Segmentation segment_recording(std::span<const double> y, double fs, const model
   pipeline::ImpactDetector det(pc.detector, fs, 1u << 12);
   det.restart(0);
   std::vector<std::uint64_t> onsets;
-  for (std::size_t i = 0; i < n; ++i) {
+  for (std::size_t i = 0; i < y.size(); ++i) {
     det.push(static_cast<float>(y[i]));
     while (det.has_onset()) onsets.push_back(det.pop_onset());
   }
   det.finish();
   while (det.has_onset()) onsets.push_back(det.pop_onset());
   std::sort(onsets.begin(), onsets.end());
-  // 1b. Off-grid onsets: the cracked tooth meets once per revolution, so every true onset has a
-  //     neighbour a whole number of revolutions away. An onset whose spacings to both neighbours are
-  //     more than 10 % of a revolution off any whole number (a trigger on a noise burst or a carried
-  //     tail, seen at 3 % noise with dry friction: 12 ms early, its window cut and the true impact lost)
-  //     is dropped; the windows around it then see the next true onset instead.
-  if (onsets.size() >= 3) {
-    std::vector<double> spacing;
-    for (std::size_t k = 1; k < onsets.size(); ++k) spacing.push_back(static_cast<double>(onsets[k] - onsets[k - 1]));
-    const double rev = median(spacing);
-    auto on_grid = [&](std::uint64_t a, std::uint64_t b) {
-      const double revs = static_cast<double>(b - a) / rev;
-      return revs > 0.5 && std::abs(revs - std::round(revs)) <= 0.1;
-    };
-    std::vector<std::uint64_t> kept;
-    for (std::size_t k = 0; k < onsets.size(); ++k) {
-      const bool left = k > 0 && on_grid(onsets[k - 1], onsets[k]);
-      const bool right = k + 1 < onsets.size() && on_grid(onsets[k], onsets[k + 1]);
-      if (left || right) kept.push_back(onsets[k]);
-    }
-    if (kept.size() >= 2) onsets = std::move(kept);
-  }
+  return onsets;
+}
 
+/// 1b. Off-grid onsets: the cracked tooth meets once per revolution, so every true onset has a
+///     neighbour a whole number of revolutions away. An onset whose spacings to both neighbours are
+///     more than 10 % of a revolution off any whole number (a trigger on a noise burst or a carried
+///     tail, seen at 3 % noise with dry friction: 12 ms early, its window cut and the true impact lost)
+///     is dropped; the windows around it then see the next true onset instead.
+void drop_off_grid_onsets(std::vector<std::uint64_t>& onsets) {
+  if (onsets.size() < 3) return;
+  std::vector<double> spacing;
+  for (std::size_t k = 1; k < onsets.size(); ++k) spacing.push_back(static_cast<double>(onsets[k] - onsets[k - 1]));
+  const double rev = median(spacing);
+  auto on_grid = [&](std::uint64_t a, std::uint64_t b) {
+    const double revs = static_cast<double>(b - a) / rev;
+    return revs > 0.5 && std::abs(revs - std::round(revs)) <= 0.1;
+  };
+  std::vector<std::uint64_t> kept;
+  for (std::size_t k = 0; k < onsets.size(); ++k) {
+    const bool left = k > 0 && on_grid(onsets[k - 1], onsets[k]);
+    const bool right = k + 1 < onsets.size() && on_grid(onsets[k], onsets[k + 1]);
+    if (left || right) kept.push_back(onsets[k]);
+  }
+  if (kept.size() >= 2) onsets = std::move(kept);
+}
+
+/// 2.-4. Noise floor, spikes and dropouts (into seg.noise_sd, seg.spikes, seg.dropouts, seg.weight).
+void noise_spikes_dropouts(std::span<const double> y, double fs, const std::vector<std::uint64_t>& onsets, Segmentation& seg) {
+  const std::size_t n = y.size();
   // 2. Noise floor and spikes from the 4-neighbour cubic-interpolation residual
   //    r[n] = x[n] - (-x[n-2] + 4x[n-1] + 4x[n+1] - x[n+2]) / 6 (as the detector's spike stage): a
   //    sinusoid of θ rad/sample leaves θ^4/6 of its amplitude (2e-5 for 860 Hz at 51.2 kHz), white
@@ -123,6 +122,63 @@ Segmentation segment_recording(std::span<const double> y, double fs, const model
     }
     i = j;
   }
+}
+
+/// Local revolution period at onset k (see the comment inside); 0 when fewer than 3 onsets are usable.
+double local_period(const std::vector<std::uint64_t>& onsets, std::size_t k, double fs, double revolution_s) {
+  // Local period: least-squares slope of onset time against revolution number over the onsets
+  // within ±4 revolutions (±0.16 s at 1500 rpm; follows a speed ramp, smooths a faster fluctuation).
+  // The detector's onsets scatter by a sample or more, so one spacing is off by ~0.1 % of 40 ms at
+  // 25.6 kHz; that error in f_z turns the mesh-periodic terms 0.07 rad out of phase by the end of a
+  // 20 ms window, 1-2x the 0.5 % noise power when the stiffness variation is strong (measured: held-out
+  // excess 1.2 with the median of 4 spacings, 0.13 with ±2 revolutions, 0.001 with ±4). A spacing that
+  // is not close to a whole number of revolutions (a mis-detected onset) ends the run; fewer than 3
+  // onsets fall back to the median of up to 4 neighbouring spacings.
+  double period = 0.0;
+  {
+    double n_pts = 0.0, sr = 0.0, st = 0.0, srr = 0.0, srt = 0.0;
+    auto add = [&](double rev, std::uint64_t onset) {
+      const double t = static_cast<double>(onset) / fs;
+      n_pts += 1.0;
+      sr += rev;
+      st += t;
+      srr += rev * rev;
+      srt += rev * t;
+    };
+    add(0.0, onsets[k]);
+    for (int dir : {-1, 1}) {
+      double rev = 0.0;
+      std::size_t j = k;
+      while (true) {
+        const std::size_t next = dir < 0 ? j - 1 : j + 1;
+        if ((dir < 0 && j == 0) || next >= onsets.size()) break;
+        const double revs = std::abs(static_cast<double>(onsets[next]) - static_cast<double>(onsets[j])) / fs / revolution_s;
+        const double whole = std::round(revs);
+        if (whole < 1.0 || std::abs(revs - whole) > 0.25) break;
+        rev += dir * whole;
+        if (std::abs(rev) > 4.0) break;
+        add(rev, onsets[next]);
+        j = next;
+      }
+    }
+    const double d = n_pts * srr - sr * sr;
+    if (n_pts >= 3.0 && d > 0.0) period = (n_pts * srt - sr * st) / d;
+  }
+  return period;
+}
+
+}  // namespace
+
+Segmentation segment_recording(std::span<const double> y, double fs, const model::RigParameters& rig,
+                               const SegmentationOptions& opt) {
+  Segmentation seg;
+  seg.sample_rate_hz = fs;
+  const std::size_t n = y.size();
+  seg.weight.assign(n, 1.0);
+
+  std::vector<std::uint64_t> onsets = detect_onsets(y, fs, rig);
+  drop_off_grid_onsets(onsets);
+  noise_spikes_dropouts(y, fs, onsets, seg);
 
   // 5. Windows and the local revolution period (one impact per revolution).
   std::vector<double> gaps;
@@ -139,44 +195,7 @@ Segmentation segment_recording(std::span<const double> y, double fs, const model
     if (end <= onsets[k] || static_cast<double>(end - onsets[k]) < opt.min_post_s * fs) continue;
     w.end = end;
     w.onset_s = static_cast<double>(onsets[k]) / fs;
-    // Local period: least-squares slope of onset time against revolution number over the onsets
-    // within ±4 revolutions (±0.16 s at 1500 rpm; follows a speed ramp, smooths a faster fluctuation).
-    // The detector's onsets scatter by a sample or more, so one spacing is off by ~0.1 % of 40 ms at
-    // 25.6 kHz; that error in f_z turns the mesh-periodic terms 0.07 rad out of phase by the end of a
-    // 20 ms window, 1-2x the 0.5 % noise power when the stiffness variation is strong (measured: held-out
-    // excess 1.2 with the median of 4 spacings, 0.13 with ±2 revolutions, 0.001 with ±4). A spacing that
-    // is not close to a whole number of revolutions (a mis-detected onset) ends the run; fewer than 3
-    // onsets fall back to the median of up to 4 neighbouring spacings.
-    double period = 0.0;
-    {
-      double n_pts = 0.0, sr = 0.0, st = 0.0, srr = 0.0, srt = 0.0;
-      auto add = [&](double rev, std::uint64_t onset) {
-        const double t = static_cast<double>(onset) / fs;
-        n_pts += 1.0;
-        sr += rev;
-        st += t;
-        srr += rev * rev;
-        srt += rev * t;
-      };
-      add(0.0, onsets[k]);
-      for (int dir : {-1, 1}) {
-        double rev = 0.0;
-        std::size_t j = k;
-        while (true) {
-          const std::size_t next = dir < 0 ? j - 1 : j + 1;
-          if ((dir < 0 && j == 0) || next >= onsets.size()) break;
-          const double revs = std::abs(static_cast<double>(onsets[next]) - static_cast<double>(onsets[j])) / fs / seg.revolution_s;
-          const double whole = std::round(revs);
-          if (whole < 1.0 || std::abs(revs - whole) > 0.25) break;
-          rev += dir * whole;
-          if (std::abs(rev) > 4.0) break;
-          add(rev, onsets[next]);
-          j = next;
-        }
-      }
-      const double d = n_pts * srr - sr * sr;
-      if (n_pts >= 3.0 && d > 0.0) period = (n_pts * srt - sr * st) / d;
-    }
+    double period = local_period(onsets, k, fs, seg.revolution_s);
     if (period <= 0.0) {
       std::vector<double> local;
       for (std::size_t g = (k >= 2 ? k - 2 : 0); g < std::min(gaps.size(), k + 2); ++g) local.push_back(gaps[g]);
