@@ -186,4 +186,31 @@ TEST(SurveyCli, WriteConfigMergesIntoACopyAndRefusesTheBaseItself) {
                cli::UsageError);
 }
 
+TEST(SurveyCli, WriteConfigRewritesARelativeRigPathForTheCopysFolder) {
+  // `rig:` is relative to the configuration file's folder: a base in sub/ naming `rig.yaml` beside it
+  // must give a copy in the parent folder that names sub/rig.yaml, and reads back with that rig.
+  namespace cli = ridgewatch::cli;
+  namespace fs = std::filesystem;
+  const std::string dir = temp_dir("rig");
+  fs::create_directories(dir + "/sub");
+  fs::copy_file(std::string(RIDGEWATCH_SOURCE_DIR) + "/config/rigs/paper-rig.yaml", dir + "/sub/rig.yaml",
+                fs::copy_options::overwrite_existing);
+  {
+    std::ofstream f(dir + "/sub/base.yaml");
+    f << "rig: rig.yaml\n";
+  }
+  survey_cases::Case c;
+  c.duration_s = 3;
+  const auto r = survey_cases::make_record(c);
+  indep::write_wav_mono(dir + "/rec.wav", r.x, c.fs_hz, indep::SampleFormat::pcm16);
+  std::ostringstream out, err;
+  ASSERT_EQ(cli::run_survey({dir + "/rec.wav", "--config", dir + "/sub/base.yaml", "--write-config", dir + "/out.yaml"}, out, err), 0)
+      << err.str();
+  const auto merged = cli::load_config_file(dir + "/out.yaml");  // throws (exit 2) if rig.yaml is not found
+  EXPECT_EQ(fs::path(merged.rig), fs::path("sub/rig.yaml"));
+  EXPECT_TRUE(fs::equivalent(merged.rig_model.path, dir + "/sub/rig.yaml"));
+  // The survey's proposal wins over the rig's model values (given explicitly in the copy).
+  EXPECT_NEAR(merged.pipeline.analyzer.f_expected_hz / c.f_hz, 1.0, 0.01);
+}
+
 }  // namespace
