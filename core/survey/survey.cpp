@@ -360,6 +360,7 @@ BandTrain analyse_band(const RecordSpectrum& spectrum, double f_lo, double f_hi,
 // ok in 9; with 40 ms segments in 24, ok in 21).
 double free_response_length_s(const RecordSpectrum& spectrum, double f_lo, double f_hi,
                               const std::vector<double>& t_s, double span_s) {
+  if (!(span_s > 0) || t_s.empty()) return NAN;  // (a negative span would convert to a huge size)
   double fe = 0;
   const auto c = spectrum.envelope(f_lo, f_hi, 1.0, fe);
   const auto m = static_cast<std::size_t>(span_s * fe);
