@@ -786,8 +786,14 @@ void propose_analyzer_bands(Proposal& p, const SurveyResult& res, double f, doub
     if (d < band_rel / 0.6) band_rel = std::min(band_rel, 0.6 * d);
   }
   band_rel = std::min(band_rel, 0.49 * fs / f - 1.0);
-  if (band_rel < 0.3) p.notes.push_back("ridge band narrowed to +-" + fmt(100 * band_rel) + " % (another mode or fs/2 near)");
   band_rel = std::max(band_rel, 0.02);
+  if (band_rel < 0.3) p.notes.push_back("ridge band narrowed to +-" + fmt(100 * band_rel) + " % (another mode or fs/2 near)");
+  // The +-2 % minimum can hold a further mode (the real hammer hit: 6077 Hz beside 5976.6 Hz): say so.
+  for (std::size_t i = 1; i < res.modes.size(); ++i)
+    if (std::fabs(res.modes[i].f_hz / f - 1) < band_rel)
+      p.notes.push_back("a further mode at " + fmt(res.modes[i].f_hz, 5) +
+                        " Hz lies inside the ridge band (closer than its +-2 % minimum): at eta0 " + fmt(p.analyzer.eta0) +
+                        " the ridge cannot separate them, expect ridge_lost; another ringing mode may serve better");
   double ml_rel = std::min(0.12, band_rel);
   for (double l : res.line_hz) ml_rel = std::min(ml_rel, 0.6 * std::fabs(l / f - 1));
   for (std::size_t i = 1; i < res.modes.size(); ++i) ml_rel = std::min(ml_rel, 0.6 * std::fabs(res.modes[i].f_hz / f - 1));
