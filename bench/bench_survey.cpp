@@ -3,6 +3,9 @@
 //   bench_survey sweep [SEEDS]   the issue-19 acceptance grid through `survey --write-config` and
 //                                `analyze --config` (bench/survey_cases.hpp), one line per record,
 //                                then the controls without impacts (20 seeds) and a summary
+//   bench_survey sweep SEEDS F [RATE [ZETA]]   only the grid's records with that f (rate, zeta; 0 =
+//                                any), numbered as in the full sweep; no controls
+//   bench_survey controls        only the 20 controls
 //   bench_survey case FS F RATE ZETA SNR SEED [float] [wobble]   one record, verbose
 #include <chrono>
 #include <cstdlib>
@@ -44,7 +47,17 @@ void print(const survey_cases::Case& c, const survey_cases::Outcome& o) {
   std::fflush(stdout);
 }
 
-int sweep_mode(int seeds) {
+// filter: only the records whose f / rate / zeta match the given values (<= 0: any); the other
+// records keep their numbering (seed, sample rate, format), so a subset reproduces the full sweep's lines.
+struct SweepFilter {
+  double f = 0, rate = 0, zeta = 0;
+  bool controls = true;
+  bool match(double f_, double r_, double z_) const {
+    return (f <= 0 || f == f_) && (rate <= 0 || rate == r_) && (zeta <= 0 || zeta == z_);
+  }
+};
+
+int sweep_mode(int seeds, const SweepFilter& filter) {
   const std::string dir = std::filesystem::temp_directory_path() / ("bench_survey-" + std::to_string(getpid()));
   std::filesystem::create_directories(dir);
   const double rates_fs[] = {25600, 44100, 48000, 51200};
@@ -52,7 +65,7 @@ int sweep_mode(int seeds) {
   const double rates[] = {5, 25, 120};
   const double zetas[] = {0.002, 0.01, 0.05};
   const double snrs[] = {10, 25, 40};
-  int n = 0, pass = 0, feasible = 0, feasible_pass = 0;
+  int n = 0, run = 0, pass = 0, feasible = 0, feasible_pass = 0;
   for (double f : fns)
     for (double rate : rates)
       for (double z : zetas)
@@ -68,6 +81,8 @@ int sweep_mode(int seeds) {
           c.wobble = (n / 2) % 2;
           c.duration_s = std::max(6.0, 40.0 / rate);
           ++n;
+          if (!filter.match(f, rate, z)) continue;
+          ++run;
           // Per-impact damping is measurable when the decay falls below 30 % of its start before the
           // next impact comes and the period holds the analyzer's minimum window (10 kernel widths).
           const double left = std::exp(-2 * 3.141592653589793 * f * z / (rate * 1.05));
@@ -82,7 +97,7 @@ int sweep_mode(int seeds) {
           if (!ok_case) std::printf("    (decays overlap: %.0f %% left at the next impact, or the period is below the minimum window)\n", 100 * left);
         }
   int proposals = 0;
-  for (int s = 0; s < 20; ++s) {
+  for (int s = 0; s < (filter.controls ? 20 : 0); ++s) {
     survey_cases::Case c;
     c.impacts = false;
     c.seed = static_cast<std::uint64_t>(1000 + s);
@@ -97,7 +112,7 @@ int sweep_mode(int seeds) {
   }
   std::printf("summary: %d/%d records meet every acceptance figure; of the %d with measurable decays %d; controls "
               "without impacts: %d proposals in 20\n",
-              pass, n, feasible, feasible_pass, proposals);
+              pass, run, feasible, feasible_pass, proposals);
   return 0;
 }
 
@@ -106,7 +121,17 @@ int sweep_mode(int seeds) {
 int main(int argc, char** argv) {
   const std::string mode = argc > 1 ? argv[1] : "time";
   if (mode == "time") return time_mode();
-  if (mode == "sweep") return sweep_mode(argc > 2 ? std::atoi(argv[2]) : 3);
+  if (mode == "sweep") {
+    SweepFilter filter;
+    if (argc > 3) filter.f = std::atof(argv[3]);
+    if (argc > 4) filter.rate = std::atof(argv[4]);
+    if (argc > 5) filter.zeta = std::atof(argv[5]);
+    filter.controls = argc <= 3;
+    return sweep_mode(argc > 2 ? std::atoi(argv[2]) : 3, filter);
+  }
+  if (mode == "controls") {
+    return sweep_mode(0, SweepFilter{});  // no seeds per cell: only the 20 controls
+  }
   if (mode == "case" && argc >= 8) {
     survey_cases::Case c;
     c.fs_hz = std::atof(argv[2]);
@@ -132,6 +157,6 @@ int main(int argc, char** argv) {
     std::cout << o.analyze_err;
     return 0;
   }
-  std::cerr << "usage: bench_survey time | sweep [SEEDS] | case FS F RATE ZETA SNR SEED [float] [wobble] [none]\n";
+  std::cerr << "usage: bench_survey time | sweep [SEEDS [F [RATE [ZETA]]]] | controls | case FS F RATE ZETA SNR SEED [float] [wobble] [none]\n";
   return 2;
 }

@@ -10,6 +10,7 @@
 #include <cmath>
 #include <filesystem>
 #include <fstream>
+#include <optional>
 #include <ostream>
 #include <sstream>
 #include <stdexcept>
@@ -212,6 +213,18 @@ plots::PlotFile free_response_plot(const survey::SurveyResult& r) {
           fig.svg()};
 }
 
+// `rig:` is read relative to the configuration file's directory (cli/config_yaml.hpp); the copy may
+// be written to another directory, so a relative rig path of the base file is rewritten relative to
+// the copy's directory (absolute when no relative path leads there, e.g. another drive root).
+std::string rig_path_for_copy(const std::string& rig, const std::optional<std::string>& base, const std::string& out) {
+  namespace fs = std::filesystem;
+  if (rig.empty() || fs::path(rig).is_absolute() || !base) return rig;
+  const fs::path target = fs::absolute(fs::path(*base).parent_path() / rig).lexically_normal();
+  const fs::path out_dir = fs::absolute(fs::path(out)).parent_path().lexically_normal();
+  const fs::path rel = target.lexically_relative(out_dir);
+  return rel.empty() ? target.string() : rel.string();
+}
+
 }  // namespace
 
 std::string proposal_yaml(const survey::Proposal& p) {
@@ -281,6 +294,7 @@ int survey_and_report(const std::vector<double>& samples, double fs, const std::
     c.pipeline.analyzer.ml_band_rel = p.analyzer.ml_band_rel;
     c.pipeline.analyzer.window_s = p.analyzer.window_s;
     c.pipeline.analyzer.clip_level = p.analyzer.clip_level;
+    c.rig = rig_path_for_copy(c.rig, output.base_config, *output.write_config);
     std::ofstream f(*output.write_config, std::ios::binary | std::ios::trunc);
     f << "# ridgewatch configuration: " << (output.base_config ? *output.base_config : std::string("the defaults"))
       << " with the pipeline proposed by `ridgewatch survey` on " << name << "\n"

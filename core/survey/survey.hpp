@@ -22,8 +22,10 @@
 //     spread in % of it.
 //  4. Free responses: for up to 24 impacts spread over the record, the raw samples from 1/bw + 2 ms
 //     before the band envelope's peak to just before the next impact go to dsp::identify_modes (the
-//     modes command's analysis, onset found by it: the first sample at half the segment's peak; the
-//     search over the whole range [f_min, f_max], not only the kurtogram band:
+//     modes command's analysis), with the onset at the first sample at half the segment's peak but
+//     not before 0.5/bw ahead of the envelope's peak, and the end 10 decay time constants later (at
+//     least 50 ms; tau from the record's power averaged over the impacts; the whole interval when
+//     the decays fill it); the search over the whole range [f_min, f_max], not only the kurtogram band:
 //     an impact's onset is a broadband click, so the sharpest bursts can lie well away from the
 //     resonance, and the ringing mode is the decaying one). Modes of all segments are
 //     clustered (+-1.5 % in f); the cluster found in the most segments with status ok is the
