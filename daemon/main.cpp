@@ -16,7 +16,7 @@
 #include "app/args.hpp"
 #include "app/config_yaml.hpp"
 #include "app/usage.hpp"
-#include "cli/survey.hpp"
+#include "app/survey_report.hpp"
 #include "daemon/daemon.hpp"
 #include "daemon/relay_test.hpp"
 #include "drivers/alsa_source.hpp"
@@ -26,7 +26,6 @@
 
 namespace {
 
-namespace cli = ridgewatch::cli;
 namespace app = ridgewatch::app;
 using ridgewatch::daemon::Daemon;
 
@@ -59,14 +58,14 @@ void setup_logging(const std::string& level) {
 }
 
 // --survey SECONDS: record that long from the configured source (nothing else is started: no event
-// log, no relays, no notification) and print the survey of cli/survey.hpp; --write-config OUT merges
+// log, no relays, no notification) and print the survey report of app/survey_report.hpp; --write-config OUT merges
 // the proposal into a copy of --config (or of the defaults).
 int run_survey_mode(const app::Args& args, const app::RidgewatchConfig& config, const std::optional<std::string>& config_path) {
   const double seconds = args.number("--survey", 0.0, 0.5, 3600.0);
-  cli::SurveyOutput output;
+  app::SurveyOutput output;
   output.write_config = args.value("--write-config");
   output.base_config = config_path;
-  cli::check_survey_output(output);
+  app::check_survey_output(output);
   auto source = ridgewatch::daemon::open_source(config, config_path.value_or("configuration"));
   const double fs = source->info().sample_rate_hz;
   const auto want = static_cast<std::size_t>(std::llround(seconds * fs));
@@ -82,7 +81,7 @@ int run_survey_mode(const app::Args& args, const app::RidgewatchConfig& config, 
     std::cerr << "ridgewatchd: survey: the source ended after " << static_cast<double>(x.size()) / fs << " s of the "
               << seconds << " s asked for\n";
   if (x.size() < 64) throw ridgewatch::drivers::InputError(source->info().name + ": too few samples for a survey");
-  return cli::survey_and_report(x, fs, source->info().name, {}, output, std::cout, std::cerr);
+  return app::survey_and_report(x, fs, source->info().name, {}, output, std::cout, std::cerr);
 }
 
 int run(const std::vector<std::string>& argv) {
