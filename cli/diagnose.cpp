@@ -86,7 +86,7 @@ int run_diagnose(const std::vector<std::string>& argv, std::ostream& out, std::o
   diag::Loaded l = diag::load(args);
   std::optional<std::filesystem::path> plot_dir;  // made (or refused) before the fits
   if (const auto d = args.value("--plots")) plot_dir = plots::prepare_dir(*d);
-  // Default 16 impacts (8 fitted, 8 held out, as the prototype of DESIGN.md): each candidate refit
+  // Default 16 impacts (8 fitted, 8 held out): each candidate refit
   // costs ~0.1-1 s per 16 impacts; more impacts sharpen the gate but cost linearly.
   l.seg = diagnosis::subset_windows(l.seg, static_cast<std::size_t>(args.integer("--max-impacts", 16, 4, 100000)));
   diagnosis::ModelFitter fitter(l.y, l.seg, l.rig.rig);

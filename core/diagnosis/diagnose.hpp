@@ -3,7 +3,7 @@
 // judge each on the held-out impacts, accept the best one that passes the gate, repeat until none
 // passes. Pure computation.
 //
-// Gate (all required; DESIGN.md "Model-discrepancy loop"):
+// Gate (all required; README "Model vs measurement"):
 //  1. clear held-out gain: excess_before - excess_after > 3 sqrt(2 / n_held) (1 + excess_after), three
 //     standard errors of a held-out power ratio over n_held white samples;
 //  2. at least 75 % of the held-out impacts improve (a real effect acts on every impact; fitting noise

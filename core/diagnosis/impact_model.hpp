@@ -7,7 +7,7 @@
 // (core/model/effect.hpp), fixed-step RK4 and event location on switching effects (Coulomb friction,
 // contact loss) with the stick test, exactly as the simulator does.
 //
-// Window conventions (what makes the fit identifiable; DESIGN.md "Model-discrepancy loop"):
+// Window conventions (what makes the fit identifiable; README "Model vs measurement"):
 //  * the impact is a half-sine force pulse of the rig's duration starting at `onset_s` with peak
 //    `force_n` (the two per-impact nuisances);
 //  * mesh-periodic terms run on the mesh angle referenced to the impact: θ_z(t) = φ_z + 2π f_z

@@ -18,7 +18,7 @@
 //     measured amplitude range.
 // The second condition keeps small deterministic biases of the envelope (neighbour leakage, the noise
 // debiasing at the window end) from being reported as physics.
-// Laws (DESIGN.md's table of damping mechanisms): viscous zeta = a (constant); dry (Coulomb) friction
+// Laws (one per damping mechanism): viscous zeta = a (constant); dry (Coulomb) friction
 // dA/dt = -b0 gives zeta_eq = a + c / A (rises as the amplitude falls); quadratic (aerodynamic) damping
 // dA/dt = -c A^2 gives zeta_eq = a + b A. Both are fitted by weighted least squares; the one with the
 // smaller residual sum is reported, with 95 % intervals.
