@@ -371,244 +371,339 @@ void WindowSimulator::simulate(std::uint64_t first, std::size_t n, const Impact&
   }
 }
 
-void WindowSimulator::simulate_unguarded(std::uint64_t first, std::size_t n, const Impact& imp, const ModelState& carry,
-                                         double* out, End& end, std::vector<TraceSample>* trace) const {
-  const double t_begin = static_cast<double>(first) / fs_;
-  const double omega = kTwoPi * imp.mesh_hz;
-  const Steady ss = mesh_forcing_ ? steady_state(imp.mesh_hz) : Steady{};
+/// One window's integration (simulate_unguarded) as named steps: the set-up (steady state, mesh terms
+/// on the half-step grid), Eq. A1's force with the effects' regimes, the RK4 step, the step lengths
+/// ending at the pulse edges, the event location with the stick test, and the output and trace.
+/// Holds the state that changes during the window: the switching regimes and whether the mesh sticks.
+struct WindowSimulator::Run {
+  Run(const WindowSimulator& sim, std::uint64_t first, std::size_t n, const Impact& imp,
+      std::vector<TraceSample>* trace);
+
+  /// From the steady state plus `carry` at the window start: out[0..n) and the window end.
+  void integrate(const ModelState& carry, double* out, End& end);
+
+  // Set-up and mesh terms.
+  void build_grid();
+  void terms_at(double t, double th, double& dc, double& e, double& de, double& dcs) const;
+  void steady_at(double t, double& x, double& v) const;
+  double mesh_angle(double t) const { return sim_.physics_.mesh_phase_rad + omega_ * (t - imp_.onset_s); }
+  double since_impact(double t) const;
+  double pulse(double t) const;
+  // Dynamics (Eq. A1) and the integrator.
+  model::MeshState mesh_state(double t, const Vec& s) const;
+  double force(double t, const Vec& s, bool include_stick) const;
+  Vec deriv(double t, const Vec& s) const;
+  Vec rk4(double t, const Vec& s, double hs) const;
+  // Switching effects: event test, regime update with the stick test, release.
+  bool violated(double t, const Vec& s) const;
+  void update_regimes(double t, Vec& s, bool reversal);
+  void check_release(double t, const Vec& s);
+  // Stepping over one output sample.
+  void advance_sample(double t_sample, Vec& s);
+  double step_length(double t, double t_end) const;
+  void locate_event(double& t, double step, Vec& s);
+  // Output.
+  double output(double t, const Vec& st) const;
+  void record(double ts, const Vec& st);
+
+  const WindowSimulator& sim_;
+  const Impact& imp_;
+  const std::size_t n_;
+  std::vector<TraceSample>* const trace_;
+  const double t_begin_;
+  const double omega_;
+  const Steady ss_;
+  const double h_;            ///< RK4 step (s): one sample over substeps_
+  const double inv_half_h_;   ///< 2 / h_: grid index per second
+  const double c0_;
+  /// Time since the latest impact (user-defined effects' t): before this window's onset, since the
+  /// previous impact one revolution earlier (z1 / f_z).
+  const double revolution_s_;
+  /// Mesh terms {Δc, e, de/dθ, static Δc} on the half-step grid (empty: no exact phasors).
+  std::vector<std::array<double, 4>> grid_;
+  std::vector<int> regimes_;
+  bool stuck_ = false;
+};
+
+WindowSimulator::Run::Run(const WindowSimulator& sim, std::uint64_t first, std::size_t n, const Impact& imp,
+                          std::vector<TraceSample>* trace)
+    : sim_(sim),
+      imp_(imp),
+      n_(n),
+      trace_(trace),
+      t_begin_(static_cast<double>(first) / sim.fs_),
+      omega_(kTwoPi * imp.mesh_hz),
+      ss_(sim.mesh_forcing_ ? sim.steady_state(imp.mesh_hz) : Steady{}),
+      h_(1.0 / (sim.fs_ * sim.substeps_)),
+      inv_half_h_(2.0 / h_),
+      c0_(sim.physics_.c0_n_per_m),
+      revolution_s_(imp.mesh_hz > 0.0 ? static_cast<double>(sim.rig_.pinion_teeth) / imp.mesh_hz : 0.0),
+      regimes_(sim.effects_.size(), 1) {
+  build_grid();
+}
+
+void WindowSimulator::Run::build_grid() {
   // Mesh terms on the half-step grid t_begin + j h/2, where every regular RK4 stage falls: the angle
   // advances by a fixed Ω h/2, so cos/sin follow by rotation (rounding grows by ~1e-16 per step, 1e-13
   // over a window) and the phasor sums are done once per grid point instead of once per stage (four
   // stages per step, two of them on shared points). Off-grid times (pulse edges, located events) and
   // non-phasor effects use mesh_terms directly.
-  const double h = 1.0 / (fs_ * substeps_);
-  std::vector<std::array<double, 4>> grid;
-  if (mesh_forcing_ && phasors_exact_ && n > 1) {
-    grid.resize(2 * static_cast<std::size_t>(substeps_) * (n - 1) + 1);
-    const double th0 = physics_.mesh_phase_rad + omega * (t_begin - imp.onset_s);
-    const double dth = omega * 0.5 * h;
-    const double cr = std::cos(dth), sr = std::sin(dth);
-    double c1 = std::cos(th0), s1 = std::sin(th0);
-    for (auto& g : grid) {
-      double dc = 0.0, e = 0.0, de = 0.0, dcs = 0.0;
-      phasor_sums(c1, s1, dc, e, de, dcs);
-      g = {dc, e, de, dcs};
-      const double cn = c1 * cr - s1 * sr;
-      s1 = s1 * cr + c1 * sr;
-      c1 = cn;
+  if (!(sim_.mesh_forcing_ && sim_.phasors_exact_ && n_ > 1)) return;
+  grid_.resize(2 * static_cast<std::size_t>(sim_.substeps_) * (n_ - 1) + 1);
+  const double th0 = sim_.physics_.mesh_phase_rad + omega_ * (t_begin_ - imp_.onset_s);
+  const double dth = omega_ * 0.5 * h_;
+  const double cr = std::cos(dth), sr = std::sin(dth);
+  double c1 = std::cos(th0), s1 = std::sin(th0);
+  for (auto& g : grid_) {
+    double dc = 0.0, e = 0.0, de = 0.0, dcs = 0.0;
+    sim_.phasor_sums(c1, s1, dc, e, de, dcs);
+    g = {dc, e, de, dcs};
+    const double cn = c1 * cr - s1 * sr;
+    s1 = s1 * cr + c1 * sr;
+    c1 = cn;
+  }
+}
+
+void WindowSimulator::Run::terms_at(double t, double th, double& dc, double& e, double& de, double& dcs) const {
+  if (!grid_.empty()) {
+    const double u = (t - t_begin_) * inv_half_h_;
+    const double j = std::round(u);
+    if (std::abs(u - j) < 1e-6 && j >= 0.0 && j < static_cast<double>(grid_.size())) {
+      const auto& g = grid_[static_cast<std::size_t>(j)];
+      dc = g[0];
+      e = g[1];
+      de = g[2];
+      dcs = g[3];
+      return;
     }
   }
-  const double inv_half_h = 2.0 / h;
-  auto terms_at = [&](double t, double th, double& dc, double& e, double& de, double& dcs) {
-    if (!grid.empty()) {
-      const double u = (t - t_begin) * inv_half_h;
-      const double j = std::round(u);
-      if (std::abs(u - j) < 1e-6 && j >= 0.0 && j < static_cast<double>(grid.size())) {
-        const auto& g = grid[static_cast<std::size_t>(j)];
-        dc = g[0];
-        e = g[1];
-        de = g[2];
-        dcs = g[3];
-        return;
-      }
-    }
-    mesh_terms(th, dc, e, de, dcs);
-  };
-  auto steady_at = [&](double t, double& x, double& v) {
-    x = v = 0.0;
-    if (!mesh_forcing_) return;
-    const double th = physics_.mesh_phase_rad + omega * (t - imp.onset_s);
-    x = ss.x0;
-    for (int k = 0; k < kSteadyOrders; ++k) {
-      const cd ph = std::polar(1.0, (k + 1) * th);
-      x += std::real(ss.x[k] * ph);
-      v += std::real(cd(0.0, (k + 1) * omega) * ss.x[k] * ph);
-    }
-  };
-  const double c0 = physics_.c0_n_per_m;
-  std::vector<int> regimes(effects_.size(), 1);
-  bool stuck = false;
+  sim_.mesh_terms(th, dc, e, de, dcs);
+}
 
-  // Time since the latest impact (user-defined effects' t): before this window's onset, since the
-  // previous impact one revolution earlier (z1 / f_z).
-  const double revolution_s = imp.mesh_hz > 0.0 ? static_cast<double>(rig_.pinion_teeth) / imp.mesh_hz : 0.0;
-  auto since_impact = [&](double t) { return t >= imp.onset_s ? t - imp.onset_s : t - imp.onset_s + revolution_s; };
-  auto pulse = [&](double t) {
-    const double u = (t - imp.onset_s) / pulse_s_;
-    return (u >= 0.0 && u < 1.0) ? imp.force_n * std::sin(std::numbers::pi * u) : 0.0;
-  };
-  auto mesh_state = [&](double t, const Vec& s) {
-    model::MeshState m;
-    m.t_s = t;
-    m.t_since_impact_s = since_impact(t);
-    m.mesh_angle_rad = physics_.mesh_phase_rad + omega * (t - imp.onset_s);
-    m.x_m = s[0];
-    m.v_m_per_s = s[1];
-    double dc, e, de, dcs;
-    terms_at(t, m.mesh_angle_rad, dc, e, de, dcs);
-    m.deflection_m = q_s_ + s[0] + e;
-    return m;
-  };
+void WindowSimulator::Run::steady_at(double t, double& x, double& v) const {
+  x = v = 0.0;
+  if (!sim_.mesh_forcing_) return;
+  const double th = mesh_angle(t);
+  x = ss_.x0;
+  for (int k = 0; k < kSteadyOrders; ++k) {
+    const cd ph = std::polar(1.0, (k + 1) * th);
+    x += std::real(ss_.x[k] * ph);
+    v += std::real(cd(0.0, (k + 1) * omega_) * ss_.x[k] * ph);
+  }
+}
+
+double WindowSimulator::Run::since_impact(double t) const {
+  return t >= imp_.onset_s ? t - imp_.onset_s : t - imp_.onset_s + revolution_s_;
+}
+
+double WindowSimulator::Run::pulse(double t) const {
+  const double u = (t - imp_.onset_s) / sim_.pulse_s_;
+  return (u >= 0.0 && u < 1.0) ? imp_.force_n * std::sin(std::numbers::pi * u) : 0.0;
+}
+
+model::MeshState WindowSimulator::Run::mesh_state(double t, const Vec& s) const {
+  model::MeshState m;
+  m.t_s = t;
+  m.t_since_impact_s = since_impact(t);
+  m.mesh_angle_rad = mesh_angle(t);
+  m.x_m = s[0];
+  m.v_m_per_s = s[1];
+  double dc, e, de, dcs;
+  terms_at(t, m.mesh_angle_rad, dc, e, de, dcs);
+  m.deflection_m = sim_.q_s_ + s[0] + e;
+  return m;
+}
+
+double WindowSimulator::Run::force(double t, const Vec& s, bool include_stick) const {
   // Net force on the mesh coordinate, Eq. A1 (same terms as model::simulate's Dynamics).
-  auto force = [&](double t, const Vec& s, bool include_stick) {
-    const double th = physics_.mesh_phase_rad + omega * (t - imp.onset_s);
-    double dc, e, de, dcs, factor = 1.0;
-    terms_at(t, th, dc, e, de, dcs);
-    for (std::size_t i = 0; i < effects_.size(); ++i) factor *= effects_[i]->mesh_force_factor(regimes[i]);
-    model::MeshState m;
-    m.t_s = t;
-    m.t_since_impact_s = since_impact(t);
-    m.mesh_angle_rad = th;
-    m.x_m = s[0];
-    m.v_m_per_s = s[1];
-    m.deflection_m = q_s_ + s[0] + e;
-    const double rate = s[1] + de * omega;
-    // The static deflection sees only the static part of the variation (as model::simulate).
-    const double elastic = dcs == dc ? (c0 + dc) * m.deflection_m : (c0 + dc) * (s[0] + e) + (c0 + dcs) * q_s_;
-    double f = static_force_ + pulse(t) - factor * (elastic + damping_ratio_at(t) * crit_ * rate);
-    for (std::size_t i = 0; i < effects_.size(); ++i) {
-      if (!include_stick && effects_[i]->stick_force_limit_n() > 0.0) continue;
-      f -= effects_[i]->resisting_force_n(m, regimes[i]);
-    }
-    return f;
-  };
-  auto deriv = [&](double t, const Vec& s) {
-    Vec d{};
-    if (!stuck) {
-      d[0] = s[1];
-      d[1] = force(t, s, true) / m_red_;
-    }
-    if (has_aux_) {
-      d[2] = s[3];
-      d[3] = aux_part_ * pulse(t) / m_red_ - aux_2zw_ * s[3] - aux_w2_ * s[2];
-    }
-    return d;
-  };
-  auto rk4 = [&](double t, const Vec& s, double hs) {
-    const Vec k1 = deriv(t, s);
-    Vec tmp;
-    for (int i = 0; i < 4; ++i) tmp[i] = s[i] + 0.5 * hs * k1[i];
-    const Vec k2 = deriv(t + 0.5 * hs, tmp);
-    for (int i = 0; i < 4; ++i) tmp[i] = s[i] + 0.5 * hs * k2[i];
-    const Vec k3 = deriv(t + 0.5 * hs, tmp);
-    for (int i = 0; i < 4; ++i) tmp[i] = s[i] + hs * k3[i];
-    const Vec k4 = deriv(t + hs, tmp);
-    Vec o;
-    for (int i = 0; i < 4; ++i) o[i] = s[i] + hs / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
-    return o;
-  };
-  auto violated = [&](double t, const Vec& s) {
-    if (switching_.empty()) return false;
-    const model::MeshState m = mesh_state(t, s);
-    for (std::size_t i : switching_) {
-      if (stuck && effects_[i]->stick_force_limit_n() > 0.0) continue;
-      if (sign_of(effects_[i]->switching_function(m)) != regimes[i]) return true;
-    }
-    return false;
-  };
-  auto update_regimes = [&](double t, Vec& s, bool reversal) {
-    const model::MeshState m = mesh_state(t, s);
-    for (std::size_t i : switching_) regimes[i] = sign_of(effects_[i]->switching_function(m));
-    if (stick_limit_n_ > 0.0 && reversal) {
-      Vec rest = s;
-      rest[1] = 0.0;
-      if (std::abs(force(t, rest, false)) <= stick_limit_n_) {
-        stuck = true;
-        s[1] = 0.0;
-      }
-    }
-  };
-  auto check_release = [&](double t, const Vec& s) {
-    if (!stuck) return;
-    const double other = force(t, s, false);
-    if (std::abs(other) > stick_limit_n_) {
-      stuck = false;
-      for (std::size_t i : switching_)
-        if (effects_[i]->stick_force_limit_n() > 0.0) regimes[i] = sign_of(other);
-    }
-  };
+  const auto& effects = sim_.effects_;
+  const double th = mesh_angle(t);
+  double dc, e, de, dcs, factor = 1.0;
+  terms_at(t, th, dc, e, de, dcs);
+  for (std::size_t i = 0; i < effects.size(); ++i) factor *= effects[i]->mesh_force_factor(regimes_[i]);
+  model::MeshState m;
+  m.t_s = t;
+  m.t_since_impact_s = since_impact(t);
+  m.mesh_angle_rad = th;
+  m.x_m = s[0];
+  m.v_m_per_s = s[1];
+  m.deflection_m = sim_.q_s_ + s[0] + e;
+  const double rate = s[1] + de * omega_;
+  // The static deflection sees only the static part of the variation (as model::simulate).
+  const double elastic =
+      dcs == dc ? (c0_ + dc) * m.deflection_m : (c0_ + dc) * (s[0] + e) + (c0_ + dcs) * sim_.q_s_;
+  double f = sim_.static_force_ + pulse(t) - factor * (elastic + sim_.damping_ratio_at(t) * sim_.crit_ * rate);
+  for (std::size_t i = 0; i < effects.size(); ++i) {
+    if (!include_stick && effects[i]->stick_force_limit_n() > 0.0) continue;
+    f -= effects[i]->resisting_force_n(m, regimes_[i]);
+  }
+  return f;
+}
 
-  double xs = 0.0, vs = 0.0;
-  steady_at(t_begin, xs, vs);
-  Vec s{xs + carry.x, vs + carry.v, carry.p, carry.pd};
-  update_regimes(t_begin, s, s[1] == 0.0 && stick_limit_n_ > 0.0);
-  auto output = [&](double t, const Vec& st) {
-    switch (rig_.sensor_quantity) {
-      case model::SensorQuantity::kDisplacement: return sens_ * (st[0] + st[2]);
-      case model::SensorQuantity::kAcceleration: {
-        const Vec d = deriv(t, st);
-        return sens_ * (d[1] + d[3]);
-      }
-      case model::SensorQuantity::kVelocity: break;
+Vec WindowSimulator::Run::deriv(double t, const Vec& s) const {
+  Vec d{};
+  if (!stuck_) {
+    d[0] = s[1];
+    d[1] = force(t, s, true) / sim_.m_red_;
+  }
+  if (sim_.has_aux_) {
+    d[2] = s[3];
+    d[3] = sim_.aux_part_ * pulse(t) / sim_.m_red_ - sim_.aux_2zw_ * s[3] - sim_.aux_w2_ * s[2];
+  }
+  return d;
+}
+
+Vec WindowSimulator::Run::rk4(double t, const Vec& s, double hs) const {
+  const Vec k1 = deriv(t, s);
+  Vec tmp;
+  for (int i = 0; i < 4; ++i) tmp[i] = s[i] + 0.5 * hs * k1[i];
+  const Vec k2 = deriv(t + 0.5 * hs, tmp);
+  for (int i = 0; i < 4; ++i) tmp[i] = s[i] + 0.5 * hs * k2[i];
+  const Vec k3 = deriv(t + 0.5 * hs, tmp);
+  for (int i = 0; i < 4; ++i) tmp[i] = s[i] + hs * k3[i];
+  const Vec k4 = deriv(t + hs, tmp);
+  Vec o;
+  for (int i = 0; i < 4; ++i) o[i] = s[i] + hs / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
+  return o;
+}
+
+bool WindowSimulator::Run::violated(double t, const Vec& s) const {
+  if (sim_.switching_.empty()) return false;
+  const model::MeshState m = mesh_state(t, s);
+  for (std::size_t i : sim_.switching_) {
+    if (stuck_ && sim_.effects_[i]->stick_force_limit_n() > 0.0) continue;
+    if (sign_of(sim_.effects_[i]->switching_function(m)) != regimes_[i]) return true;
+  }
+  return false;
+}
+
+void WindowSimulator::Run::update_regimes(double t, Vec& s, bool reversal) {
+  const model::MeshState m = mesh_state(t, s);
+  for (std::size_t i : sim_.switching_) regimes_[i] = sign_of(sim_.effects_[i]->switching_function(m));
+  if (sim_.stick_limit_n_ > 0.0 && reversal) {
+    // Stick test: at a velocity reversal the mesh stays at rest if the other forces do not exceed
+    // the dry-friction limit.
+    Vec rest = s;
+    rest[1] = 0.0;
+    if (std::abs(force(t, rest, false)) <= sim_.stick_limit_n_) {
+      stuck_ = true;
+      s[1] = 0.0;
     }
-    return sens_ * (st[1] + st[3]);
-  };
-  double t = t_begin;
+  }
+}
+
+void WindowSimulator::Run::check_release(double t, const Vec& s) {
+  if (!stuck_) return;
+  const double other = force(t, s, false);
+  if (std::abs(other) > sim_.stick_limit_n_) {
+    stuck_ = false;
+    for (std::size_t i : sim_.switching_)
+      if (sim_.effects_[i]->stick_force_limit_n() > 0.0) regimes_[i] = sign_of(other);
+  }
+}
+
+void WindowSimulator::Run::advance_sample(double t_sample, Vec& s) {
+  // substeps_ RK4 steps of h_, each split at the pulse edges and at located events.
+  for (int k = 0; k < sim_.substeps_; ++k) {
+    double t = t_sample + k * h_;
+    const double t_end = t + h_;
+    int splits = 0;
+    while (t < t_end) {
+      check_release(t, s);
+      const double step = step_length(t, t_end);
+      const bool full = step == t_end - t;
+      const Vec next = rk4(t, s, step);
+      if (++splits > 64 || !violated(t + step, next)) {
+        s = next;
+        t = full ? t_end : t + step;
+        continue;
+      }
+      locate_event(t, step, s);
+    }
+  }
+}
+
+double WindowSimulator::Run::step_length(double t, double t_end) const {
+  // Steps end at the pulse onset and end (as in the simulator): a stuck mesh is released only
+  // at a step start, and RK4 across the pulse's kinks loses accuracy.
+  double step = t_end - t;
+  const double pulse_end = imp_.onset_s + sim_.pulse_s_;
+  if (imp_.onset_s > t && imp_.onset_s < t_end) step = imp_.onset_s - t;
+  else if (pulse_end > t && pulse_end < t_end) step = pulse_end - t;
+  // A stuck mesh is released by the pulse within a microsecond of its onset (once it exceeds
+  // the friction limit), but release is only checked at step starts: while stuck inside the
+  // pulse take steps of τ/64 (2.3 µs), else the release lags by up to a whole step (an O(h)
+  // phase error: 4x the noise power at 0.5 % noise and ωh = 0.15, measured).
+  if (stuck_ && t >= imp_.onset_s && t < pulse_end) step = std::min(step, sim_.pulse_s_ / 64.0);
+  return step;
+}
+
+void WindowSimulator::Run::locate_event(double& t, double step, Vec& s) {
+  // Event location by bisection on the step fraction (as the simulator, 2^-30 of a step), then the
+  // step to the event and the new regimes (with the stick test at a velocity reversal).
+  double lo = 0.0, hi = 1.0;
+  for (int it = 0; it < 30; ++it) {
+    const double mid = 0.5 * (lo + hi);
+    if (violated(t + mid * step, rk4(t, s, mid * step))) hi = mid;
+    else lo = mid;
+  }
+  const bool moving = !stuck_;
+  const int vsign = sign_of(s[1]);
+  s = rk4(t, s, hi * step);
+  t += hi * step;
+  update_regimes(t, s, moving && sign_of(s[1]) != vsign);
+}
+
+double WindowSimulator::Run::output(double t, const Vec& st) const {
+  switch (sim_.rig_.sensor_quantity) {
+    case model::SensorQuantity::kDisplacement: return sim_.sens_ * (st[0] + st[2]);
+    case model::SensorQuantity::kAcceleration: {
+      const Vec d = deriv(t, st);
+      return sim_.sens_ * (d[1] + d[3]);
+    }
+    case model::SensorQuantity::kVelocity: break;
+  }
+  return sim_.sens_ * (st[1] + st[3]);
+}
+
+void WindowSimulator::Run::record(double ts, const Vec& st) {
+  if (trace_ != nullptr) trace_->push_back({st[0], st[1], mesh_angle(ts), since_impact(ts), ts});
+}
+
+void WindowSimulator::Run::integrate(const ModelState& carry, double* out, End& end) {
+  double xs = 0.0, vs = 0.0;
+  steady_at(t_begin_, xs, vs);
+  Vec s{xs + carry.x, vs + carry.v, carry.p, carry.pd};
+  update_regimes(t_begin_, s, s[1] == 0.0 && sim_.stick_limit_n_ > 0.0);
   // Once dry friction holds the mesh and nothing time-dependent acts any more (no mesh-periodic
   // forcing, no auxiliary mode, the pulse over), the state is frozen: check_release sees the same
   // static force at every later step, so the rest of the window is the current output (this skips
   // most of a friction model's windows and carried gaps).
-  const bool can_freeze = !mesh_forcing_ && !has_aux_;
-  auto record = [&](double ts, const Vec& st) {
-    if (trace != nullptr)
-      trace->push_back({st[0], st[1], physics_.mesh_phase_rad + omega * (ts - imp.onset_s), since_impact(ts), ts});
-  };
-  for (std::size_t i = 0; i < n; ++i) {
-    const double t_sample = t_begin + static_cast<double>(i) / fs_;
-    out[i] = imp.polarity * output(t_sample, s);
+  const bool can_freeze = !sim_.mesh_forcing_ && !sim_.has_aux_;
+  for (std::size_t i = 0; i < n_; ++i) {
+    const double t_sample = t_begin_ + static_cast<double>(i) / sim_.fs_;
+    out[i] = imp_.polarity * output(t_sample, s);
     record(t_sample, s);
-    if (i + 1 == n) break;
-    if (stuck && can_freeze && (imp.force_n == 0.0 || t_sample >= imp.onset_s + pulse_s_)) {
-      for (std::size_t j = i + 1; j < n; ++j) {
+    if (i + 1 == n_) break;
+    if (stuck_ && can_freeze && (imp_.force_n == 0.0 || t_sample >= imp_.onset_s + sim_.pulse_s_)) {
+      for (std::size_t j = i + 1; j < n_; ++j) {
         out[j] = out[i];
-        record(t_begin + static_cast<double>(j) / fs_, s);
+        record(t_begin_ + static_cast<double>(j) / sim_.fs_, s);
       }
-      t = t_begin + static_cast<double>(n - 1) / fs_;
       break;
     }
-    for (int k = 0; k < substeps_; ++k) {
-      t = t_sample + k * h;
-      const double t_end = t + h;
-      int splits = 0;
-      while (t < t_end) {
-        check_release(t, s);
-        // Steps end at the pulse onset and end (as in the simulator): a stuck mesh is released only
-        // at a step start, and RK4 across the pulse's kinks loses accuracy.
-        double step = t_end - t;
-        const double pulse_end = imp.onset_s + pulse_s_;
-        if (imp.onset_s > t && imp.onset_s < t_end) step = imp.onset_s - t;
-        else if (pulse_end > t && pulse_end < t_end) step = pulse_end - t;
-        // A stuck mesh is released by the pulse within a microsecond of its onset (once it exceeds
-        // the friction limit), but release is only checked at step starts: while stuck inside the
-        // pulse take steps of τ/64 (2.3 µs), else the release lags by up to a whole step (an O(h)
-        // phase error: 4x the noise power at 0.5 % noise and ωh = 0.15, measured).
-        if (stuck && t >= imp.onset_s && t < pulse_end) step = std::min(step, pulse_s_ / 64.0);
-        const bool full = step == t_end - t;
-        const Vec next = rk4(t, s, step);
-        if (++splits > 64 || !violated(t + step, next)) {
-          s = next;
-          t = full ? t_end : t + step;
-          continue;
-        }
-        // Event location by bisection on the step fraction (as the simulator, 2^-30 of a step).
-        double lo = 0.0, hi = 1.0;
-        for (int it = 0; it < 30; ++it) {
-          const double mid = 0.5 * (lo + hi);
-          if (violated(t + mid * step, rk4(t, s, mid * step))) hi = mid;
-          else lo = mid;
-        }
-        const bool moving = !stuck;
-        const int vsign = sign_of(s[1]);
-        s = rk4(t, s, hi * step);
-        t += hi * step;
-        update_regimes(t, s, moving && sign_of(s[1]) != vsign);
-      }
-    }
+    advance_sample(t_sample, s);
   }
-  const double t_last = t_begin + static_cast<double>(n - 1) / fs_;
+  const double t_last = t_begin_ + static_cast<double>(n_ - 1) / sim_.fs_;
   steady_at(t_last, xs, vs);
-  end.stopped = stuck;
+  end.stopped = stuck_;
   end.transient = {s[0] - xs, s[1] - vs, s[2], s[3]};
+}
+
+void WindowSimulator::simulate_unguarded(std::uint64_t first, std::size_t n, const Impact& imp, const ModelState& carry,
+                                         double* out, End& end, std::vector<TraceSample>* trace) const {
+  Run run(*this, first, n, imp, trace);
+  run.integrate(carry, out, end);
 }
 
 }  // namespace ridgewatch::diagnosis

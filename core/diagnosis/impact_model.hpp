@@ -130,8 +130,11 @@ class WindowSimulator {
     std::complex<double> x[kSteadyOrders];      ///< phasors of x_ss for mesh orders 1..kSteadyOrders
   };
   Steady steady_state(double mesh_hz) const;
+  /// simulate without the guard against a non-finite user-defined force: one Run over the window.
   void simulate_unguarded(std::uint64_t first, std::size_t n, const Impact& impact, const ModelState& carry,
                           double* out, End& end, std::vector<TraceSample>* trace) const;
+  /// One window's integration (RK4 with event location and the stick test) in named steps (the .cpp).
+  struct Run;
   /// Δc(θ), e(θ), de/dθ summed over the effects (phasors when exact, else the effects' hooks).
   /// `dcs`: the static part of Δc (multiplies q_s; equal to dc unless an effect relieves it).
   void mesh_terms(double th, double& dc, double& e, double& de, double& dcs) const;
