@@ -109,12 +109,17 @@ TEST(ReferenceDetector, BundledRecords) {
   const fs::path dir = fs::path(RIDGEWATCH_SOURCE_DIR) / "replay-data";
   auto files = wavs_under(dir);
   ASSERT_GE(files.size(), 19u) << dir;  // paper-table1 and the simulated cases (the golden inputs)
+  // The comparison must see real detections: the 19 records hold 883 (50 in most simulated cases);
+  // the sanitizer subset (paper-table1 and two 50-impact cases) 100.
 #ifdef RIDGEWATCH_SANITIZED
   files.resize(3);  // a representative subset under the sanitizers (3-6x slower)
+  const std::size_t min_detections = 100;
+#else
+  const std::size_t min_detections = 850;
 #endif
   std::size_t total = 0;
   for (const auto& f : files) total += compare(f.filename().string(), read_record(f), record_rate(f));
-  EXPECT_GT(total, 100u);  // the comparison saw real detections
+  EXPECT_GE(total, min_detections);
 }
 
 TEST(ReferenceDetector, SharedRealRecords) {
