@@ -93,9 +93,10 @@ class TcpLink final : public MqttLink {
     if (topic.size() > 0xFFFF) return MOSQ_ERR_INVAL;
     const std::size_t remaining = 2 + topic.size() + (qos > 0 ? 2 : 0) + payload.size();
     if (remaining > 268435455) return MOSQ_ERR_PAYLOAD_SIZE;  // the varint's limit (2.2.3)
-    next_id_ = next_id_ == 0xFFFF ? 1 : next_id_ + 1;           // packet identifiers are non-zero (2.3.1)
+    next_id_ = next_id_ == 0xFFFF ? 1 : next_id_ + 1;         // packet identifiers are non-zero (2.3.1)
     *mid = next_id_;
-    put_header(out_, static_cast<unsigned char>(kPublish | (qos > 0 ? 0x02 : 0x00) | (retain ? 0x01 : 0x00)), remaining);
+    put_header(out_, static_cast<unsigned char>(kPublish | (qos > 0 ? 0x02 : 0x00) | (retain ? 0x01 : 0x00)),
+               remaining);
     put_field(out_, topic);
     if (qos > 0) put_u16(out_, next_id_);
     out_.append(payload);
@@ -175,8 +176,8 @@ class TcpLink final : public MqttLink {
     std::string body;
     put_field(body, "MQTT");
     body += static_cast<char>(4);
-    unsigned char flags = 0x02;                                       // clean session
-    if (!opt_.will_topic.empty()) flags |= 0x04 | (1 << 3) | 0x20;    // will, will QoS 1, will retain
+    unsigned char flags = 0x02;                                     // clean session
+    if (!opt_.will_topic.empty()) flags |= 0x04 | (1 << 3) | 0x20;  // will, will QoS 1, will retain
     if (!opt_.username.empty()) flags |= 0x80;
     if (!opt_.username.empty() && !opt_.password.empty()) flags |= 0x40;
     body += static_cast<char>(flags);
@@ -244,7 +245,8 @@ class TcpLink final : public MqttLink {
 
 class MosquittoLink final : public MqttLink {
  public:
-  MosquittoLink(const app::MqttConfig& cfg, const Options& o, Events& events, std::string& error) : keepalive_s_(o.keepalive_s) {
+  MosquittoLink(const app::MqttConfig& cfg, const Options& o, Events& events, std::string& error)
+      : keepalive_s_(o.keepalive_s) {
     mosq_ = mosquitto_new(o.client_id.c_str(), true, &events);
     if (!mosq_) {
       error = "cannot create a client (out of memory)";
@@ -254,9 +256,12 @@ class MosquittoLink final : public MqttLink {
     // No limit of its own (0): the sink bounds what is in flight (a limit here would queue inside the
     // library instead of leaving the events in the spool).
     mosquitto_max_inflight_messages_set(mosq_, 0);
-    mosquitto_connect_callback_set(mosq_, [](struct mosquitto*, void* e, int rc) { static_cast<Events*>(e)->on_connect(rc); });
-    mosquitto_publish_callback_set(mosq_, [](struct mosquitto*, void* e, int mid) { static_cast<Events*>(e)->on_publish(mid); });
-    if (!o.username.empty()) mosquitto_username_pw_set(mosq_, o.username.c_str(), o.password.empty() ? nullptr : o.password.c_str());
+    mosquitto_connect_callback_set(mosq_,
+                                   [](struct mosquitto*, void* e, int rc) { static_cast<Events*>(e)->on_connect(rc); });
+    mosquitto_publish_callback_set(
+        mosq_, [](struct mosquitto*, void* e, int mid) { static_cast<Events*>(e)->on_publish(mid); });
+    if (!o.username.empty())
+      mosquitto_username_pw_set(mosq_, o.username.c_str(), o.password.empty() ? nullptr : o.password.c_str());
     const int rc = mosquitto_tls_set(mosq_, cfg.tls.ca_file.c_str(), nullptr,
                                      cfg.tls.cert_file.empty() ? nullptr : cfg.tls.cert_file.c_str(),
                                      cfg.tls.key_file.empty() ? nullptr : cfg.tls.key_file.c_str(), nullptr);
@@ -265,14 +270,17 @@ class MosquittoLink final : public MqttLink {
       return;
     }
     if (!o.will_topic.empty())
-      mosquitto_will_set(mosq_, o.will_topic.c_str(), static_cast<int>(o.will_payload.size()), o.will_payload.data(), 1, true);
+      mosquitto_will_set(mosq_, o.will_topic.c_str(), static_cast<int>(o.will_payload.size()), o.will_payload.data(), 1,
+                         true);
   }
   ~MosquittoLink() override {
     if (mosq_) mosquitto_destroy(mosq_);
   }
   bool ok() const { return mosq_ != nullptr; }
 
-  int connect(const std::string& host, int port) override { return mosquitto_connect(mosq_, host.c_str(), port, keepalive_s_); }
+  int connect(const std::string& host, int port) override {
+    return mosquitto_connect(mosq_, host.c_str(), port, keepalive_s_);
+  }
   int socket() const override { return mosquitto_socket(mosq_); }
   bool want_write() const override { return mosquitto_want_write(mosq_); }
   int publish(int* mid, const std::string& topic, std::string_view payload, int qos, bool retain) override {
