@@ -68,13 +68,9 @@ std::string implausibility(const ModelFitter& fitter, const FitResult& fit, cons
     if (z2 > 0.2) return "second mode damping ratio " + format_number(z2) + " > 0.2 is not a resonance";
   }
   if (effect == "damping_drift") {
-    // Lowest ζ over the record: at its start or end, after a negative step (rate or step absent: fixed).
-    const ParameterEstimate* rate = find_estimate(fit, "damping_drift.rate_per_s");
-    const ParameterEstimate* step = find_estimate(fit, "damping_drift.step");
+    const double rate = find_estimate(fit, "damping_drift.rate_per_s")->value;
     const double t_end = static_cast<double>(seg.windows.back().end) / seg.sample_rate_hz;
-    const double lowest = zeta + std::min(0.0, rate != nullptr ? rate->value * t_end : 0.0) +
-                          std::min(0.0, step != nullptr ? step->value : 0.0);
-    if (lowest <= 0.0 || zeta <= 0.0) return "the drift or step would make the damping ratio negative";
+    if (zeta + rate * t_end <= 0.0 || zeta <= 0.0) return "the drift would make the damping ratio negative";
   }
   return "";
 }

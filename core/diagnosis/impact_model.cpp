@@ -21,8 +21,7 @@ double to_value(Transform t, double lo, double hi, double u) {
   switch (t) {
     case Transform::kLog: return std::clamp(std::exp(std::clamp(u, -700.0, 700.0)), lo, hi);
     case Transform::kBounded: return lo + (hi - lo) / (1.0 + std::exp(-std::clamp(u, -700.0, 700.0)));
-    case Transform::kAngle:
-    case Transform::kScan: break;
+    case Transform::kAngle: break;
   }
   return u;
 }
@@ -35,8 +34,7 @@ double to_u(Transform t, double lo, double hi, double value) {
       const double f = std::clamp((value - lo) / (hi - lo), 1e-6, 1.0 - 1e-6);
       return std::log(f / (1.0 - f));
     }
-    case Transform::kAngle:
-    case Transform::kScan: break;
+    case Transform::kAngle: break;
   }
   return value;
 }
@@ -71,15 +69,10 @@ const std::vector<CandidateSpec>& candidate_table() {
        {{"kappa", Transform::kBounded, -0.2, 5.0, 0.0}},
        {{"reference_deflection_m", 2e-6}},
        false, {}},
-      // Every parameter the effect is simulated with: the rate, the step and its time. The step time
-      // is scanned over the gaps between the impacts (Transform::kScan); its start, past any record,
-      // leaves the step inactive until the scan places it. The step within ±0.2 (ζ is fitted in
-      // [1e-4, 0.5]; the catalogue allows ±0.5).
+      // A linear drift only; a step would need its (discontinuous) time as a parameter.
       {"damping_drift",
-       {{"rate_per_s", Transform::kBounded, -0.01, 0.01, 0.0},
-        {"step", Transform::kBounded, -0.2, 0.2, 0.0},
-        {"step_time_s", Transform::kScan, 0.0, 1e6, 1e6}},
-       {},
+       {{"rate_per_s", Transform::kBounded, -0.01, 0.01, 0.0}},
+       {{"step", 0.0}, {"step_time_s", 1e6}},
        false, {}},
   };
   return table;

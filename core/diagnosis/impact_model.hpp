@@ -36,10 +36,6 @@ enum class Transform {
   kLog,      ///< v = exp(u), clamped to [lo, hi] (lo > 0): positive, scale-free
   kBounded,  ///< v = lo + (hi - lo) / (1 + exp(-u)): both bounds, smooth
   kAngle,    ///< v = u (an angle; reported wrapped to (-π, π])
-  /// v = u, not moved by the optimiser: a time at which the model changes discontinuously (a damping
-  /// step). The residual is flat in it between impacts, so the fitter finds it by a scan over the gaps
-  /// between the training impacts (model_fit.hpp) and reports the gaps it cannot tell apart.
-  kScan,
 };
 
 double to_value(Transform t, double lo, double hi, double u);

@@ -102,11 +102,7 @@ void ModelFitter::set_parameter_settings(const std::map<std::string, ParameterSe
     }
     if (f == nullptr)
       throw std::invalid_argument("effect " + effect + ": '" + key + "' is not a fitted parameter (fitted: " + known + ")");
-    if (f->transform == Transform::kScan && !s.fixed)
-      throw std::invalid_argument("effect " + effect + ": " + key +
-                                  " is found by a scan over the gaps between the impacts and takes no start; fix it with " +
-                                  key + "=VALUE!");
-    const bool angle = f->transform == Transform::kAngle || f->transform == Transform::kScan;
+    const bool angle = f->transform == Transform::kAngle;
     if (!std::isfinite(s.value) || (!angle && (s.value < f->lo || s.value > f->hi))) {
       std::ostringstream o;
       o << "effect " << effect << ": " << key << " = " << s.value << " is outside the fit range [" << f->lo << ", "
@@ -200,14 +196,12 @@ ModelFitter::Linearisation ModelFitter::linearise(const FitResult& fit) const {
   return lin;
 }
 
-ModelFitter::Chain ModelFitter::evaluate(const std::vector<GlobalParameter>& layout, const FitParams& p,
-                                         const std::vector<char>* needed) const {
+ModelFitter::Chain ModelFitter::evaluate(const std::vector<GlobalParameter>& layout, const FitParams& p) const {
   const WindowSimulator sim(rig_, physics(layout, p.u), seg_.sample_rate_hz);
   Chain c;
   c.out.resize(seg_.windows.size());
   c.end.resize(seg_.windows.size());
-  for (std::size_t w = 0; w < seg_.windows.size(); ++w)
-    if (needed == nullptr || (*needed)[w]) simulate_window(sim, w, p, c, c.out[w], c.end[w]);
+  for (std::size_t w = 0; w < seg_.windows.size(); ++w) simulate_window(sim, w, p, c, c.out[w], c.end[w]);
   return c;
 }
 
@@ -275,13 +269,6 @@ struct FitProblem {
   std::vector<std::size_t> row_offset;    // by window index, npos if not a row
   Eigen::Index rows = 0;
   double inv_sigma = 1.0;
-  /// Windows to simulate: the row windows and, back along the chain, the predecessors whose tails
-  /// they carry (a held-out impact that no row window follows is not simulated: a quarter of the
-  /// windows with diagnose's runs of four).
-  std::vector<char> needed;
-  /// The last evaluations by parameter vector: LM asks for the Jacobian at a point it has just
-  /// evaluated (the accepted step, sometimes followed by rejected trials), whose chain is reused.
-  mutable std::vector<std::pair<Eigen::VectorXd, ModelFitter::Chain>> recent;
 
   void setup() {
     const auto& seg = fitter->segmentation();
@@ -292,35 +279,17 @@ struct FitProblem {
       rows += static_cast<Eigen::Index>(seg.windows[w].end - seg.windows[w].begin);
     }
     inv_sigma = 1.0 / seg.noise_sd;
-    needed.assign(seg.windows.size(), 0);
-    for (std::size_t w : row_windows) needed[w] = 1;
-    for (std::size_t w = seg.windows.size(); w-- > 0;)
-      if (needed[w] && seg.windows[w].predecessor >= 0) needed[static_cast<std::size_t>(seg.windows[w].predecessor)] = 1;
-    recent.clear();
   }
-  ModelFitter::Chain chain_at(const Eigen::VectorXd& x) const {
-    for (const auto& [rx, rc] : recent)
-      if (rx.size() == x.size() && rx == x) return rc;
-    ModelFitter::Chain c = fitter->evaluate(layout, unpack(x), &needed);
-    if (recent.size() == 4) recent.erase(recent.begin());
-    recent.push_back({x, c});
-    return c;
+  int inputs() const {
+    return (globals_free ? static_cast<int>(layout.size()) : 0) + 2 * static_cast<int>(free_windows.size());
   }
-  /// Layout indices of the globals the optimiser moves (all but the scanned ones, Transform::kScan).
-  std::vector<Eigen::Index> moved_globals() const {
-    std::vector<Eigen::Index> g;
-    if (globals_free)
-      for (std::size_t i = 0; i < layout.size(); ++i)
-        if (layout[i].transform != Transform::kScan) g.push_back(static_cast<Eigen::Index>(i));
-    return g;
-  }
-  int inputs() const { return static_cast<int>(moved_globals().size()) + 2 * static_cast<int>(free_windows.size()); }
   int values() const { return static_cast<int>(rows); }
 
   FitParams unpack(const Eigen::VectorXd& x) const {
     FitParams p = base;
     Eigen::Index k = 0;
-    for (Eigen::Index i : moved_globals()) p.u[i] = x[k++];
+    if (globals_free)
+      for (Eigen::Index i = 0; i < p.u.size(); ++i) p.u[i] = x[k++];
     for (std::size_t w : free_windows) {
       p.ln_force[w] = x[k++];
       p.shift[w] = x[k++];
@@ -330,7 +299,8 @@ struct FitProblem {
   Eigen::VectorXd pack(const FitParams& p) const {
     Eigen::VectorXd x(inputs());
     Eigen::Index k = 0;
-    for (Eigen::Index i : moved_globals()) x[k++] = p.u[i];
+    if (globals_free)
+      for (Eigen::Index i = 0; i < p.u.size(); ++i) x[k++] = p.u[i];
     for (std::size_t w : free_windows) {
       x[k++] = p.ln_force[w];
       x[k++] = p.shift[w];
@@ -347,12 +317,13 @@ struct FitProblem {
     for (std::size_t w : row_windows) fill_rows(w, c.out[w], f.data() + row_offset[w]);
   }
   int operator()(const Eigen::VectorXd& x, Eigen::VectorXd& f) const {
-    residuals(chain_at(x), f);
+    const ModelFitter::Chain c = fitter->evaluate(layout, unpack(x));
+    residuals(c, f);
     return 0;
   }
   int df(const Eigen::VectorXd& x, Eigen::MatrixXd& J) const {
     const FitParams p = unpack(x);
-    const ModelFitter::Chain c = chain_at(x);
+    const ModelFitter::Chain c = fitter->evaluate(layout, p);
     Eigen::VectorXd f0(rows), f1(rows);
     residuals(c, f0);
     J.setZero(rows, inputs());
@@ -360,14 +331,14 @@ struct FitProblem {
     // Forward differences. Steps: 1e-6 in u for globals (a relative change of 1e-6 in a ln/logistic
     // parameter, ~1e4 times the round-off of the residuals in σ units) and for ln F; 1e-4 samples for
     // the onset (a phase change of 1e-5 rad at 860 Hz, 51.2 kHz).
-    {
-      for (Eigen::Index i : moved_globals()) {
+    if (globals_free) {
+      for (Eigen::Index i = 0; i < p.u.size(); ++i, ++col) {
         FitParams q = p;
         const double h = 1e-6 * std::max(1.0, std::abs(p.u[i]));
         q.u[i] += h;
-        const ModelFitter::Chain cq = fitter->evaluate(layout, q, &needed);
+        const ModelFitter::Chain cq = fitter->evaluate(layout, q);
         residuals(cq, f1);
-        J.col(col++) = (f1 - f0) / h;
+        J.col(col) = (f1 - f0) / h;
       }
     }
     const auto& seg = fitter->segmentation();
@@ -444,27 +415,14 @@ struct WindowProblem {
     const auto& wt = fitter->segmentation().weight;
     for (std::size_t i = 0; i < m.size(); ++i) dst[i] = wt[win.begin + i] * (y[win.begin + i] - m[i]) * inv_sigma;
   }
-  /// The last residuals by (ln F, shift): the Jacobian is asked for at a point just evaluated.
-  mutable std::vector<std::pair<Eigen::VectorXd, Eigen::VectorXd>> recent;
-  void cached_residual(const Eigen::VectorXd& x, Eigen::VectorXd& f) const {
-    for (const auto& [rx, rf] : recent)
-      if (rx == x) {
-        f = rf;
-        return;
-      }
-    f.resize(rows);
-    residual(x[0], x[1], f.data());
-    if (recent.size() == 4) recent.erase(recent.begin());
-    recent.push_back({x, f});
-  }
   int operator()(const Eigen::VectorXd& x, Eigen::VectorXd& f) const {
-    cached_residual(x, f);
+    residual(x[0], x[1], f.data());
     return 0;
   }
   int df(const Eigen::VectorXd& x, Eigen::MatrixXd& J) const {
     // Forward differences with the steps of FitProblem::df (1e-6 in ln F, 1e-4 samples of onset).
     Eigen::VectorXd f0(rows), f1(rows);
-    cached_residual(x, f0);
+    residual(x[0], x[1], f0.data());
     J.resize(rows, 2);
     residual(x[0] + 1e-6, x[1], f1.data());
     J.col(0) = (f1 - f0) / 1e-6;
@@ -528,139 +486,6 @@ bool ModelFitter::onset_grid(const WindowSimulator& sim, std::size_t w, const Fi
     }
   }
   return std::isfinite(best);
-}
-
-void ModelFitter::scan_step_times(const FitProblem& train, FitParams& p, FitResult& res) const {
-  // damping_drift's step time (the only scanned parameter): ζ(t) = ζ + rate t + step [t >= t_step].
-  // The training residual is flat in t_step between two training impacts, so it is chosen among the
-  // gaps between consecutive training impacts. Linearised in the damping of each window: with f_w the
-  // training residual of window w without the step and J_w its derivative by ζ (one evaluation), the
-  // best (δζ, δrate, step) for a step in gap k is a small least-squares problem on the per-window sums
-  // F_w = f_w·f_w, g_w = J_w·f_w, H_w = J_w·J_w (a fixed step enters as an offset). The gap with the
-  // lowest χ² is taken, the step starts at its estimate; the 95 % interval spans every gap within
-  // Δχ² = 3.84 of it (profile likelihood for one parameter), from the end of the training impact
-  // before to the start of the one after.
-  const auto& L = res.layout;
-  auto index_of = [&](const std::string& name) {
-    for (std::size_t i = 0; i < L.size(); ++i)
-      if (L[i].name == name) return static_cast<Eigen::Index>(i);
-    return Eigen::Index{-1};
-  };
-  const Eigen::Index it = index_of("damping_drift.step_time_s"), iz = index_of("zeta");
-  const Eigen::Index ir = index_of("damping_drift.rate_per_s"), is = index_of("damping_drift.step");
-  if (it < 0 || train.row_windows.size() < 2) return;
-  double fixed_step = 0.0;
-  if (const auto f = settings_.find("damping_drift.step"); f != settings_.end() && f->second.fixed) fixed_step = f->second.value;
-  FitParams q = p;
-  q.u[it] = L[static_cast<std::size_t>(it)].hi;  // past the record: no step
-  const Chain c0 = evaluate(L, q);
-  FitParams qz = q;
-  const auto& gz = L[static_cast<std::size_t>(iz)];
-  qz.u[iz] += 1e-4;
-  const double dz = to_value(gz.transform, gz.lo, gz.hi, qz.u[iz]) - to_value(gz.transform, gz.lo, gz.hi, q.u[iz]);
-  const Chain c1 = evaluate(L, qz);
-  const std::size_t nt = train.row_windows.size();
-  std::vector<double> F(nt), g(nt), H(nt), tw(nt);
-  std::vector<double> r0, r1;
-  for (std::size_t k = 0; k < nt; ++k) {
-    const std::size_t w = train.row_windows[k];
-    r0.resize(c0.out[w].size());
-    r1.resize(c1.out[w].size());
-    train.fill_rows(w, c0.out[w], r0.data());
-    train.fill_rows(w, c1.out[w], r1.data());
-    for (std::size_t i = 0; i < r0.size(); ++i) {
-      const double j = (r1[i] - r0[i]) / dz;
-      F[k] += r0[i] * r0[i];
-      g[k] += j * r0[i];
-      H[k] += j * j;
-    }
-    tw[k] = seg_.windows[w].onset_s;
-  }
-  const int m = 1 + (ir >= 0 ? 1 : 0) + (is >= 0 ? 1 : 0);
-  std::vector<double> cost(nt - 1), step(nt - 1, 0.0);
-  for (std::size_t gap = 0; gap + 1 < nt; ++gap) {
-    Eigen::MatrixXd N = Eigen::MatrixXd::Zero(m, m);
-    Eigen::VectorXd rhs = Eigen::VectorXd::Zero(m);
-    double e = 0.0;
-    for (std::size_t k = 0; k < nt; ++k) {
-      const double after = k > gap ? 1.0 : 0.0;
-      Eigen::VectorXd phi(m);
-      int c = 0;
-      phi[c++] = 1.0;
-      if (ir >= 0) phi[c++] = tw[k];
-      if (is >= 0) phi[c++] = after;
-      N += H[k] * phi * phi.transpose();
-      rhs -= (g[k] + fixed_step * after * H[k]) * phi;
-      e += F[k] + after * (2.0 * fixed_step * g[k] + fixed_step * fixed_step * H[k]);
-    }
-    const Eigen::VectorXd sol = N.completeOrthogonalDecomposition().solve(rhs);
-    cost[gap] = e - rhs.dot(sol);
-    if (is >= 0) step[gap] = sol[m - 1];
-  }
-  const std::size_t best = static_cast<std::size_t>(std::min_element(cost.begin(), cost.end()) - cost.begin());
-  std::size_t lo = best, hi = best;
-  for (std::size_t gap = 0; gap < cost.size(); ++gap)
-    if (cost[gap] - cost[best] < 3.84) {
-      lo = std::min(lo, gap);
-      hi = std::max(hi, gap);
-    }
-  const double fs = seg_.sample_rate_hz;
-  auto gap_begin = [&](std::size_t gap) { return static_cast<double>(seg_.windows[train.row_windows[gap]].end) / fs; };
-  auto gap_end = [&](std::size_t gap) { return static_cast<double>(seg_.windows[train.row_windows[gap + 1]].begin) / fs; };
-  p.u[it] = 0.5 * (gap_begin(best) + gap_end(best));
-  if (is >= 0) {
-    const auto& gs = L[static_cast<std::size_t>(is)];
-    p.u[is] = to_u(gs.transform, gs.lo, gs.hi, std::clamp(step[best], 0.9 * gs.lo, 0.9 * gs.hi));
-  }
-  std::array<double, 2> interval = {gap_begin(lo), gap_end(hi)};
-  refine_step_time(train, train.row_windows[best], train.row_windows[best + 1], p, interval);
-  res.scan_interval[L[static_cast<std::size_t>(it)].name] = interval;
-}
-
-void ModelFitter::refine_step_time(const FitProblem& train, std::size_t before, std::size_t after, FitParams& p,
-                                   std::array<double, 2>& interval) const {
-  // A step inside a training window changes only that window's later part: times every 0.25 ms
-  // through the windows on both sides of the chosen gap, each window's χ² with the step there
-  // against the step in the gap (the rest of the model as it is). The lowest becomes the step time;
-  // every time within Δχ² = 3.84 of the lowest widens the interval.
-  const auto& L = train.layout;
-  Eigen::Index it = 0;
-  for (std::size_t i = 0; i < L.size(); ++i)
-    if (L[i].transform == Transform::kScan) it = static_cast<Eigen::Index>(i);
-  const double fs = seg_.sample_rate_hz;
-  const Chain chain = evaluate(L, p);
-  std::vector<double> m, r;
-  auto window_chi2 = [&](std::size_t w, double t_step) {
-    FitParams q = p;
-    q.u[it] = t_step;
-    const WindowSimulator sim(rig_, physics(L, q.u), fs);
-    WindowSimulator::End end;
-    simulate_window(sim, w, q, chain, m, end);
-    r.resize(m.size());
-    train.fill_rows(w, m, r.data());
-    double c = 0.0;
-    for (double x : r) c += x * x;
-    return c;
-  };
-  const double in_gap = p.u[it];
-  const double ref = window_chi2(before, in_gap) + window_chi2(after, in_gap);
-  std::vector<std::pair<double, double>> tried = {{in_gap, 0.0}};
-  for (std::size_t w : {before, after}) {
-    const std::size_t other = w == before ? after : before;
-    const double other_chi2 = window_chi2(other, in_gap);
-    const double t0 = static_cast<double>(seg_.windows[w].begin) / fs, t1 = static_cast<double>(seg_.windows[w].end) / fs;
-    for (double t = t0 + 0.00025; t < t1; t += 0.00025) tried.push_back({t, window_chi2(w, t) + other_chi2 - ref});
-  }
-  const auto best = std::min_element(tried.begin(), tried.end(), [](const auto& a, const auto& b) { return a.second < b.second; });
-  p.u[it] = best->first;
-  // The gaps' interval stays only if the gap itself is within the threshold.
-  const std::array<double, 2> gaps = interval;
-  interval = {best->first, best->first};
-  for (const auto& [t, d] : tried)
-    if (d - best->second < 3.84) {
-      interval[0] = std::min(interval[0], t == in_gap ? gaps[0] : t);
-      interval[1] = std::max(interval[1], t == in_gap ? gaps[1] : t);
-    }
 }
 
 bool ModelFitter::start_values(const std::vector<GlobalParameter>& L, const FitResult* warm,
@@ -758,38 +583,17 @@ void ModelFitter::training_statistics(const FitProblem& train, const FitParams& 
     for (std::size_t w : train.row_windows)
       for (std::uint64_t i = seg_.windows[w].begin; i < seg_.windows[w].end; ++i) n_used += seg_.weight[i];
     res.train_n = n_used;
-    // A scanned step time is fitted too (by the scan): one parameter each in the BIC.
-    res.free_parameters = train.inputs() + static_cast<int>(res.scan_interval.size());
+    res.free_parameters = train.inputs();
     res.bic = n_used * std::log(res.train_chi2 / n_used) + res.free_parameters * std::log(n_used);
     const double s2 = res.train_chi2 / std::max(1.0, n_used - res.free_parameters);
     const Eigen::MatrixXd jtj = J.transpose() * J;
     const Eigen::MatrixXd cov = s2 * jtj.completeOrthogonalDecomposition().pseudoInverse();
     const auto ng = static_cast<Eigen::Index>(L.size());
-    // Covariance column of each layout index (-1: scanned, not in the Jacobian).
-    std::vector<Eigen::Index> col(L.size(), -1);
-    {
-      Eigen::Index k = 0;
-      for (Eigen::Index i : train.moved_globals()) col[static_cast<std::size_t>(i)] = k++;
-    }
     res.correlation = Eigen::MatrixXd::Identity(ng, ng);
     for (Eigen::Index i = 0; i < ng; ++i) {
       const auto& g = L[static_cast<std::size_t>(i)];
       const double u = p.u[i];
-      const Eigen::Index ci = col[static_cast<std::size_t>(i)];
-      if (ci < 0) {
-        // Scanned: the gaps the training impacts cannot tell apart (scan_step_times); sd from the
-        // interval's half-width as if it were a normal 95 % interval.
-        ParameterEstimate e;
-        e.name = g.name;
-        e.value = u;
-        const auto it = res.scan_interval.find(g.name);
-        e.ci95_lo = it != res.scan_interval.end() ? it->second[0] : u;
-        e.ci95_hi = it != res.scan_interval.end() ? it->second[1] : u;
-        e.sd = (e.ci95_hi - e.ci95_lo) / (2.0 * 1.96);
-        res.estimates.push_back(e);
-        continue;
-      }
-      const double sdu = std::sqrt(std::max(0.0, cov(ci, ci)));
+      const double sdu = std::sqrt(std::max(0.0, cov(i, i)));
       ParameterEstimate e;
       e.name = g.name;
       auto value_of = [&](double uu) {
@@ -810,10 +614,8 @@ void ModelFitter::training_statistics(const FitProblem& train, const FitParams& 
         e.at_bound = std::abs(u) > 6.9;  // logistic within 1e-3 of the range of a bound
       res.estimates.push_back(e);
       for (Eigen::Index j = 0; j < ng; ++j) {
-        const Eigen::Index cj = col[static_cast<std::size_t>(j)];
-        if (cj < 0) continue;
-        const double d = std::sqrt(cov(ci, ci) * cov(cj, cj));
-        res.correlation(i, j) = d > 0.0 ? cov(ci, cj) / d : (i == j ? 1.0 : 0.0);
+        const double d = std::sqrt(cov(i, i) * cov(j, j));
+        res.correlation(i, j) = d > 0.0 ? cov(i, j) / d : (i == j ? 1.0 : 0.0);
       }
     }
   }
@@ -945,13 +747,6 @@ FitResult ModelFitter::fit(const std::vector<std::string>& effects, const FitRes
     p = best_p;
   }
   train.base = p;
-  if (std::any_of(L.begin(), L.end(), [](const GlobalParameter& g) { return g.transform == Transform::kScan; })) {
-    // A damping step: from a cold start the rest of the model first (the step's start time lies past
-    // the record, so it is inactive), then its time by the scan, then everything by LM.
-    if (warm == nullptr) run_lm(train, p, budget);
-    scan_step_times(train, p, res);
-    train.base = p;
-  }
   res.converged = run_lm(train, p, budget);
   train.base = p;
   restart_bad_windows(train, p, budget, res);

@@ -20,7 +20,6 @@
 #pragma once
 
 #include <Eigen/Dense>
-#include <array>
 #include <map>
 #include <span>
 #include <string>
@@ -75,9 +74,6 @@ struct FitResult {
   double fit_percent = 0.0;        ///< 100 (1 - ||y - model|| / ||y - mean y||) on held-out rows
   std::vector<double> impact_power;  ///< per window: residual power / σ² (all windows, after held-out refit)
   std::vector<std::vector<double>> model;  ///< per window, the model output (after held-out refit)
-  /// 95 % intervals of the scanned parameters (Transform::kScan) by global name: the gaps between
-  /// training impacts the fit cannot tell apart.
-  std::map<std::string, std::array<double, 2>> scan_interval;
 };
 
 class ModelFitter {
@@ -117,10 +113,8 @@ class ModelFitter {
     std::vector<std::vector<double>> out;
     std::vector<WindowSimulator::End> end;
   };
-  /// Model output of every window for the given parameters (`needed`: only the windows marked, the
-  /// others left empty).
-  Chain evaluate(const std::vector<GlobalParameter>& layout, const FitParams& p,
-                 const std::vector<char>* needed = nullptr) const;
+  /// Model output of every window for the given parameters.
+  Chain evaluate(const std::vector<GlobalParameter>& layout, const FitParams& p) const;
 
   /// What term discovery (term_discovery.hpp) needs from a fit, per window: the model's mesh state at
   /// every sample (`states`) and the derivatives of the model output (sensor units) with respect to
@@ -148,11 +142,6 @@ class ModelFitter {
                     const std::vector<std::pair<std::string, double>>& start_overrides, FitParams& p) const;
   void restart_bad_windows(FitProblem& train, FitParams& p, int budget, FitResult& res) const;
   void training_statistics(const FitProblem& train, const FitParams& p, FitResult& res) const;
-  /// The damping step's time by a scan over the gaps between training impacts (the .cpp); sets its
-  /// start, the step's start and res.scan_interval.
-  void scan_step_times(const FitProblem& train, FitParams& p, FitResult& res) const;
-  void refine_step_time(const FitProblem& train, std::size_t before, std::size_t after, FitParams& p,
-                        std::array<double, 2>& interval) const;
   void heldout_refit(const std::vector<GlobalParameter>& layout, FitParams& p) const;
   void heldout_statistics(const FitParams& p, FitResult& res) const;
   /// Best onset shift (grid) and force (projection) of window w at the given physics and tail.
