@@ -414,7 +414,7 @@ namespace {
 //    noise (no line lies in the fit band) made 4 events ok, with 4-6 residual degrees of freedom and
 //    1.96 instead of Student's t, and 2 of their 95 % intervals missed the true zeta
 //    ([0.00801, 0.00996] and [0.01001, 0.01247]). The line component is now used only when it lowers
-//    the residual significantly (F test) and its interval uses t. Asserted: every impact found, none
+//    the residual significantly (F test at 1 %). Asserted: every impact found, none
 //    false, and no ok interval misses the truth (with 95 % intervals a miss among a few ok events is
 //    possible in principle; this record's estimates were the fitted noise's, not the mode's).
 indep::RigRecord ten_db_overlap_record() {
