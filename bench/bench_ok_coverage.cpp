@@ -171,23 +171,12 @@ int main(int argc, char** argv) {
   if (mode == "sweep") {
     // The records of `bench_survey sweep SEEDS` (same numbering, seeds, rates and formats).
     const int seeds = argc > 2 ? std::atoi(argv[2]) : 3;
-    const double rates_fs[] = {25600, 44100, 48000, 51200};
-    const double snrs[] = {10, 25, 40};
     int n = 0;
     for (double f : {300.0, 854.0, 2500.0, 8000.0})
       for (double rate : {5.0, 25.0, 120.0})
         for (double z : {0.002, 0.01, 0.05})
           for (int s = 0; s < seeds; ++s) {
-            survey_cases::Case c;
-            c.f_hz = f;
-            c.rate_hz = rate;
-            c.zeta = z;
-            c.seed = static_cast<std::uint64_t>(100 + n);
-            c.fs_hz = rates_fs[n % 4];
-            c.snr_db = snrs[(n / 4 + s) % 3];
-            c.float32 = n % 2;
-            c.wobble = (n / 2) % 2;
-            c.duration_s = std::max(6.0, 40.0 / rate);
+            const survey_cases::Case c = survey_cases::sweep_case(f, rate, z, s, n);
             ++n;
             print(c, run_record(c, tag_of(c), false), t);
           }

@@ -72,16 +72,7 @@ int sweep_mode(int seeds, const SweepFilter& filter) {
     for (double rate : rates)
       for (double z : zetas)
         for (int s = 0; s < seeds; ++s) {
-          survey_cases::Case c;
-          c.f_hz = f;
-          c.rate_hz = rate;
-          c.zeta = z;
-          c.seed = static_cast<std::uint64_t>(100 + n);
-          c.fs_hz = rates_fs[n % 4];
-          c.snr_db = snrs[(n / 4 + s) % 3];
-          c.float32 = n % 2;
-          c.wobble = (n / 2) % 2;
-          c.duration_s = std::max(6.0, 40.0 / rate);
+          const survey_cases::Case c = survey_cases::sweep_case(f, rate, z, s, n);
           ++n;
           if (!filter.match(f, rate, z)) continue;
           ++run;

@@ -187,4 +187,23 @@ inline HammerRecord write_hammer_record(const std::string& hit_wav, const std::s
   return h;
 }
 
+// The sweep's n-th record (0-based over all cases, s the seed index within its cell): sample rate,
+// SNR, format and speed wobble rotate with n so every combination of them is visited; the record
+// holds at least 40 impacts and 6 s.
+inline Case sweep_case(double f_hz, double rate_hz, double zeta, int s, int n) {
+  const double rates_fs[] = {25600, 44100, 48000, 51200};
+  const double snrs[] = {10, 25, 40};
+  Case c;
+  c.f_hz = f_hz;
+  c.rate_hz = rate_hz;
+  c.zeta = zeta;
+  c.seed = static_cast<std::uint64_t>(100 + n);
+  c.fs_hz = rates_fs[n % 4];
+  c.snr_db = snrs[(n / 4 + s) % 3];
+  c.float32 = n % 2;
+  c.wobble = (n / 2) % 2;
+  c.duration_s = std::max(6.0, 40.0 / rate_hz);
+  return c;
+}
+
 }  // namespace survey_cases
