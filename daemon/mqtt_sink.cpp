@@ -65,6 +65,17 @@ void check_readable(const std::string& key, const std::string& path) {
   if (!in) throw app::UsageError("output.mqtt.tls." + key + ": cannot read '" + path + "'");
 }
 
+// The reason a link call failed, for the log. libmosquitto's text for a TLS failure ("A TLS error
+// occurred.") does not say what to check, so it gets the likely causes, with the keys to look at.
+std::string link_error_text(int rc) {
+  if (rc == MOSQ_ERR_ERRNO) return std::strerror(errno);
+  if (rc == MOSQ_ERR_TLS)
+    return "TLS handshake failed (the broker's certificate does not verify against output.mqtt.tls.ca_file or "
+           "does not name output.mqtt.host, or the broker refused the client certificate "
+           "output.mqtt.tls.cert_file)";
+  return mosquitto_strerror(rc);
+}
+
 }  // namespace
 
 std::string default_topic_prefix(const std::string& source_name) { return "ridgewatch/" + safe_level(source_name); }
@@ -241,8 +252,7 @@ bool MqttSink::connect() {
   }
   const int rc = link_->connect(cfg_.host, static_cast<int>(cfg_.port));
   if (rc != MOSQ_ERR_SUCCESS) {
-    drop_connection("cannot connect to " + cfg_.host + ":" + std::to_string(cfg_.port) + ": " +
-                    (rc == MOSQ_ERR_ERRNO ? std::string(std::strerror(errno)) : std::string(mosquitto_strerror(rc))));
+    drop_connection("cannot connect to " + cfg_.host + ":" + std::to_string(cfg_.port) + ": " + link_error_text(rc));
     return false;
   }
   sent_through_ = spool_.acked();
@@ -316,7 +326,7 @@ bool MqttSink::check(int rc) {
     return false;
   }
   if (rc != MOSQ_ERR_SUCCESS) {
-    drop_connection(rc == MOSQ_ERR_ERRNO ? std::string(std::strerror(errno)) : std::string(mosquitto_strerror(rc)));
+    drop_connection(link_error_text(rc));
     return false;
   }
   return true;

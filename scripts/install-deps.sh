@@ -10,6 +10,7 @@ packages=(
   dpkg-dev man-db  # the .deb (CPack, dpkg-shlibdeps) and its test (man -l)
   clang-14 libclang-rt-14-dev
   libmosquitto-dev mosquitto libcpp-httplib-dev prometheus
+  openssl  # the MQTT TLS test makes its own test CA and certificates
   libmuparser-dev  # expressions of user-defined effects (rig file model.custom_effects)
   chromium  # the live page's test loads it in headless Chromium (the test skips when it is absent)
 )
