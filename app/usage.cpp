@@ -34,6 +34,8 @@ std::vector<Command> make_commands() {
            {"--jobs", "N", "with several streams (--all-channels): run them on N threads, 1-256 (default 1)"},
            {"--summary", "", "several FILEs allowed; instead of the events one JSON object, per file and stream and over all, "
                              "with the count of events and of ok ones, mean zeta, its spread and 95 % interval, mean f"},
+           {"--plots", "DIR", "with --summary: also write summary.svg (mean zeta per file with its 95 % interval and "
+                              "every ok event, the paper's Figure 9) and DIR/index.html"},
            kRate,
            kFormat,
        },

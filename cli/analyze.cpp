@@ -11,12 +11,14 @@
 // --summary FILE...: the paper's Figure 9 as numbers. Instead of the events, one JSON object: per file
 // and stream the count of events and of `ok` events, the mean ζ of the ok events, their standard
 // deviation (spread) and the 95 % interval of the mean (Student t), the mean and spread of f; and the
-// same over all ok events of all files pooled.
+// same over all ok events of all files pooled. With --plots DIR also DIR/summary.svg (cli/plot_summary.hpp)
+// and DIR/index.html.
 #include <algorithm>
 #include <array>
 #include <atomic>
 #include <exception>
 #include <cmath>
+#include <filesystem>
 #include <memory>
 #include <optional>
 #include <ostream>
@@ -28,6 +30,7 @@
 
 #include "app/args.hpp"
 #include "cli/commands.hpp"
+#include "cli/plot_summary.hpp"
 #include "cli/replay_flags.hpp"
 #include "app/config_yaml.hpp"
 #include "app/event_json.hpp"
@@ -86,30 +89,41 @@ struct Tally {
     for (double v : x) s += (v - m) * (v - m);
     return std::sqrt(s / static_cast<double>(x.size() - 1));
   }
+  /// Half-width of the 95 % interval of the mean ζ (Student t, ok - 1 degrees of freedom); NaN below 2.
+  double half_ci95() const {
+    const std::size_t ok = zeta.size();
+    return ok >= 2 ? t975(ok - 1) * sd(zeta) / std::sqrt(static_cast<double>(ok)) : NAN;
+  }
   /// Adds the figures to `j` (after any keys it has).
   void put(nlohmann::ordered_json& j) const {
     auto num = [](double x) { return std::isfinite(x) ? nlohmann::ordered_json(x) : nlohmann::ordered_json(nullptr); };
-    const std::size_t ok = zeta.size();
-    const double zm = mean(zeta), zs = sd(zeta);
-    const double half = ok >= 2 ? t975(ok - 1) * zs / std::sqrt(static_cast<double>(ok)) : NAN;
+    const double zm = mean(zeta), half = half_ci95();
     j["events"] = events;
-    j["ok"] = ok;
+    j["ok"] = zeta.size();
     j["zeta_mean"] = num(zm);
-    j["zeta_sd"] = num(zs);
+    j["zeta_sd"] = num(sd(zeta));
     j["zeta_mean_ci95"] = {num(zm - half), num(zm + half)};
     j["f_mean_hz"] = num(mean(f));
     j["f_sd_hz"] = num(sd(f));
+  }
+  /// The figures --plots draws for this tally.
+  plots::SummaryGroup group(std::string label) const {
+    const double m = mean(zeta), half = half_ci95();
+    return {std::move(label), zeta, m, m - half, m + half};
   }
 };
 
 }  // namespace
 
 int run_analyze(const std::vector<std::string>& argv, std::ostream& out, std::ostream& err) {
-  const Args args(argv, {"--config", "--channel", "--rate", "--rig", "--jobs"}, {"--all-channels", "--summary"});
+  const Args args(argv, {"--config", "--channel", "--rate", "--rig", "--jobs", "--plots"}, {"--all-channels", "--summary"});
   const auto jobs = static_cast<std::size_t>(args.integer("--jobs", 1, 1, 256));
   const bool summary = args.has("--summary");
   if (!summary) single_file(args);  // exactly one FILE unless --summary
   if (args.positional().empty()) throw UsageError("expects FILE (--summary: one or more)");
+  if (args.has("--plots") && !summary) throw UsageError("--plots: only with --summary (the plot shows the summary)");
+  std::filesystem::path plot_dir;
+  if (const auto d = args.value("--plots")) plot_dir = plots::prepare_dir(*d);  // before any work
   const drivers::ReplayOptions ropt = replay_options(args);
   const bool all_channels = args.has("--all-channels");
   if (all_channels && args.has("--channel")) throw UsageError("--all-channels: not with --channel");
@@ -131,6 +145,7 @@ int run_analyze(const std::vector<std::string>& argv, std::ostream& out, std::os
                      cfg_name + " (the combination names its channels)");
 
   nlohmann::ordered_json per_stream = nlohmann::ordered_json::array();
+  std::vector<plots::SummaryGroup> groups;  // for --plots
   Tally overall;
   for (const std::string& path : args.positional()) {
     pipeline::PipelineConfig cfg = full.pipeline;  // per file: rate and clip level come from the file
@@ -252,6 +267,8 @@ int run_analyze(const std::vector<std::string>& argv, std::ostream& out, std::os
       tallies[k].put(j);
       per_stream.push_back(j);
       overall.add(tallies[k]);
+      const std::string label = std::filesystem::path(path).filename().string();
+      groups.push_back(tallies[k].group(streams[k].name.empty() ? label : label + " " + streams[k].name));
     }
     std::uint64_t impacts = 0;
     for (const Stream& st : streams) {
@@ -281,6 +298,8 @@ int run_analyze(const std::vector<std::string>& argv, std::ostream& out, std::os
     doc["overall"] = o;
     out << doc.dump() << "\n";
     out.flush();
+    if (!plot_dir.empty())
+      plots::write_all(plot_dir, "ridgewatch analyze --summary", doc.dump(2), {plots::summary_plot(groups, overall.group(""))});
   }
   return kExitOk;
 }

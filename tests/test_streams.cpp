@@ -15,6 +15,7 @@
 #include <fstream>
 #include <memory>
 #include <nlohmann/json.hpp>
+#include <regex>
 #include <sstream>
 #include <string>
 #include <vector>
@@ -30,6 +31,7 @@
 #pragma GCC diagnostic push
 #pragma GCC diagnostic ignored "-Wstringop-overflow"
 #include "support/indep_signals.hpp"
+#include "test_plots_xml.hpp"
 #pragma GCC diagnostic pop
 
 namespace ridgewatch::test {
@@ -426,8 +428,8 @@ TEST_F(Streams, AllChannelsEqualsOneAnalyzePerChannel) {
   EXPECT_EQ(total, ev.size());  // every event carries a known stream
 }
 
-// --summary over two files: the figures recomputed here from the files' own event lines.
-TEST_F(Streams, SummaryOfSeveralFilesMatchesTheirEvents) {
+// Two records of the independent generator for --summary: ζ 0.03 (f0.wav) and 0.02 (f1.wav), 1.2 s each.
+static std::vector<std::string> summary_files(const fs::path& dir) {
   std::vector<std::string> files;
   for (int k = 0; k < 2; ++k) {
     indep::RigSpec s;
@@ -436,9 +438,15 @@ TEST_F(Streams, SummaryOfSeveralFilesMatchesTheirEvents) {
     s.noise_sd = 0.002;
     s.seed = 40 + static_cast<std::uint64_t>(k);
     const auto rec = indep::make_rig_record(s);
-    files.push_back((dir_ / ("f" + std::to_string(k) + ".wav")).string());
+    files.push_back((dir / ("f" + std::to_string(k) + ".wav")).string());
     indep::write_wav_mono(files.back(), rec.x, s.fs_hz, indep::SampleFormat::pcm24);
   }
+  return files;
+}
+
+// --summary over two files: the figures recomputed here from the files' own event lines.
+TEST_F(Streams, SummaryOfSeveralFilesMatchesTheirEvents) {
+  const std::vector<std::string> files = summary_files(dir_);
   const CliResult r = run_cli({"analyze", "--summary", files[0], files[1]});
   ASSERT_EQ(r.exit_code, 0) << r.err;
   const auto doc = nlohmann::json::parse(r.out);
@@ -482,6 +490,43 @@ TEST_F(Streams, SummaryOfSeveralFilesMatchesTheirEvents) {
   const CliResult two = run_cli({"analyze", files[0], files[1]});
   EXPECT_EQ(two.exit_code, 2);
   EXPECT_NE(two.err.find("expects exactly one FILE"), std::string::npos) << two.err;
+}
+
+// --summary --plots DIR: summary.svg has one bar per file, one dot per ok event and the overall mean
+// as a labelled line; the counts and the mean are taken here from the files' own event lines.
+TEST_F(Streams, SummaryPlotShowsEachFileAndEveryOkEvent) {
+  const std::vector<std::string> files = summary_files(dir_);
+  const fs::path plots = dir_ / "plots";
+  const CliResult r = run_cli({"analyze", "--summary", files[0], files[1], "--plots", plots.string()});
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const std::string svg = slurp(plots / "summary.svg");
+  ASSERT_FALSE(svg.empty());
+  EXPECT_EQ(ridgewatch::test::xml_problem(svg), "");
+  auto count = [&](const std::regex& re) {
+    return static_cast<std::size_t>(std::distance(std::sregex_iterator(svg.begin(), svg.end(), re), std::sregex_iterator()));
+  };
+  EXPECT_EQ(count(std::regex("<rect class=\"zeta-mean\"")), 2u);
+  std::size_t ok_total = 0;
+  double sum = 0;
+  for (std::size_t k = 0; k < 2; ++k) {
+    std::size_t ok = 0;
+    for (const auto& e : events_of(run_cli({"analyze", files[k]})))
+      if (e["status"] == "ok") ++ok, sum += e["zeta"].get<double>();
+    ASSERT_GT(ok, 0u);
+    const std::string label = "f" + std::to_string(k) + ".wav (" + std::to_string(ok) + " ok)";
+    EXPECT_NE(svg.find(label), std::string::npos) << label;
+    ok_total += ok;
+  }
+  // Data dots carry no fill of their own (their group has it); the legend's dot does.
+  EXPECT_EQ(count(std::regex("<circle cx=\"[^\"]*\" cy=\"[^\"]*\" r=\"[^\"]*\"/>")), ok_total);
+  char mean[48];
+  std::snprintf(mean, sizeof mean, "%.4g", sum / static_cast<double>(ok_total));
+  EXPECT_NE(svg.find("mean over all " + std::to_string(ok_total) + " ok events: " + mean), std::string::npos) << mean;
+  EXPECT_NE(slurp(plots / "index.html").find("summary.svg"), std::string::npos);
+  // --plots draws the summary: without --summary it is a usage error naming the flag.
+  const CliResult bad = run_cli({"analyze", files[0], "--plots", plots.string()});
+  EXPECT_EQ(bad.exit_code, 2);
+  EXPECT_NE(bad.err.find("--plots"), std::string::npos) << bad.err;
 }
 
 // CombinedSource on its own: the weighted sum in lockstep, and inputs of different lengths are bad input.
