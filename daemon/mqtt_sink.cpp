@@ -381,9 +381,10 @@ void MqttSink::run() {
       continue;
     }
     if (!connected_) {
-      // CONNACK pending.
+      // CONNACK pending. Over TLS the handshake may still be running when connect() returns; the
+      // library then holds the CONNECT packet until it is done, and only a write sends it.
       wait_socket(std::chrono::milliseconds(10));
-      if (check(link_->read())) check(link_->misc());
+      if (check(link_->read()) && (!link_->want_write() || check(link_->write()))) check(link_->misc());
       continue;
     }
     // One round: the acknowledgements that arrived (each PUBACK frees its event in the spool), then

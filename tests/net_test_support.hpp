@@ -121,14 +121,24 @@ class Broker {
   std::unique_ptr<ChildProcess> proc_;
 };
 
+/// Files of a TLS client: the CA that signed the broker's certificate, and the client's own pair.
+struct TlsFiles {
+  std::string ca_file, cert_file, key_file;
+};
+
 /// A persistent-session QoS 1 subscriber. Its own thread runs the client (libmosquitto's threaded
 /// loop trips ThreadSanitizer inside the library when the broker is killed) and reconnects every
-/// 100 ms while the broker is away, subscribing again on every connection.
+/// 100 ms while the broker is away, subscribing again on every connection. With `tls` it connects
+/// over TLS with those files.
 class Subscriber {
  public:
-  Subscriber(int port, const std::string& topic, const std::string& client_id = "ridgewatch-test-sub") : topic_(topic) {
+  Subscriber(int port, const std::string& topic, const std::string& client_id = "ridgewatch-test-sub",
+             const TlsFiles* tls = nullptr)
+      : topic_(topic) {
     mosquitto_lib_init();
     m_ = mosquitto_new(client_id.c_str(), false, this);
+    if (tls)
+      mosquitto_tls_set(m_, tls->ca_file.c_str(), nullptr, tls->cert_file.c_str(), tls->key_file.c_str(), nullptr);
     mosquitto_connect_callback_set(m_, [](struct mosquitto* m, void* self, int rc) {
       if (rc == 0) mosquitto_subscribe(m, nullptr, static_cast<Subscriber*>(self)->topic_.c_str(), 1);
     });

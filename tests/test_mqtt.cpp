@@ -430,11 +430,11 @@ TEST(MqttBroker, PasswordFromFileNeverLogged) {
 }
 
 // TLS end to end (the libmosquitto link): openssl makes a test CA, a server certificate for
-// 127.0.0.1 and a client certificate; mosquitto listens with TLS and requires the client certificate
-// on one port, plain on another for the test's subscriber. With the right CA and client pair every
-// event of the daemon's log arrives and the spool ends empty; with a CA that did not sign the server
-// certificate the daemon never connects (it must verify the broker), says why, and keeps every event
-// spooled.
+// 127.0.0.1 and a client certificate; mosquitto listens with TLS only and requires a client
+// certificate, and the test's subscriber connects over TLS too. With the right CA and client pair
+// every event of the daemon's log arrives and the spool ends empty; with a CA that did not sign the
+// server certificate the daemon never connects (it must verify the broker), says why, and keeps every
+// event spooled.
 namespace {
 
 // Writes ca.crt/ca.key, server.crt/key (CN and subjectAltName 127.0.0.1), client.crt/key signed by
@@ -474,22 +474,20 @@ TEST(MqttBroker, TlsWithClientCertificateDeliversEverythingAndAnUnknownCaIsRefus
   if (!fs::exists("/usr/bin/openssl")) GTEST_SKIP() << "openssl not installed (scripts/install-deps.sh installs it)";
   const auto dir = temp_dir("mqtt-tls");
   ASSERT_TRUE(make_test_pki(dir)) << ridgewatch::test::slurp(dir / "pki.log");
-  const int plain_port = ridgewatch::test::free_loopback_port();
-  int tls_port = ridgewatch::test::free_loopback_port();
-  while (tls_port == plain_port) tls_port = ridgewatch::test::free_loopback_port();
+  const int tls_port = ridgewatch::test::free_loopback_port();
   {
     std::ofstream conf(dir / "tls.conf");
-    conf << "per_listener_settings false\nallow_anonymous true\n"
-         << "listener " << plain_port << " 127.0.0.1\n"
-         << "listener " << tls_port << " 127.0.0.1\ncafile " << (dir / "ca.crt").string() << "\ncertfile "
-         << (dir / "server.crt").string() << "\nkeyfile " << (dir / "server.key").string()
+    conf << "allow_anonymous true\nlistener " << tls_port << " 127.0.0.1\ncafile " << (dir / "ca.crt").string()
+         << "\ncertfile " << (dir / "server.crt").string() << "\nkeyfile " << (dir / "server.key").string()
          << "\nrequire_certificate true\n" << (::geteuid() == 0 ? "user root\n" : "");
   }
   ChildProcess broker({"/usr/sbin/mosquitto", "-c", (dir / "tls.conf").string()}, {}, (dir / "b.out").string(),
                       (dir / "b.err").string());
-  ASSERT_TRUE(wait_for([&] { return ridgewatch::test::port_accepts(plain_port) && ridgewatch::test::port_accepts(tls_port); }, 10s))
+  ASSERT_TRUE(wait_for([&] { return ridgewatch::test::port_accepts(tls_port); }, 10s)) << ridgewatch::test::slurp(dir / "b.err");
+  const ridgewatch::test::TlsFiles client{(dir / "ca.crt").string(), (dir / "client.crt").string(), (dir / "client.key").string()};
+  Subscriber sub(tls_port, "t/rig/events", "ridgewatch-test-sub", &client);
+  ASSERT_TRUE(wait_for([&] { return ridgewatch::test::slurp(dir / "b.err").find("as ridgewatch-test-sub") != std::string::npos; }, 10s))
       << ridgewatch::test::slurp(dir / "b.err");
-  Subscriber sub(plain_port, "t/rig/events");
 
   ChildProcess d({RIDGEWATCHD_PATH, "--config", mqtt_config(dir, tls_port, tls_keys(dir, "ca.crt")), "--replay", kReplay,
                   "--speed", "max", "--events", (dir / "ev.jsonl").string()},
