@@ -15,9 +15,11 @@
 //     highest peak of the envelope smoothed over 0.6 / max_rate (or its shortest sub-multiple standing
 //     >= 40 % as high) is the impact period;
 //     the envelope spectrum (|DFT of e - mean|) shows the rate and its harmonics.
-//  3. Impacts: maxima of e that dominate +-0.45 periods and exceed a fifth of the typical impact's
-//     height, the median of e's maxima over windows one period long (onset clicks vary 2-fold in
-//     amplitude with their position between samples);
+//  3. Impacts: maxima of e that dominate +-0.45 periods and exceed a fifth of the median such
+//     maximum; when no candidate band forms a train so, a fifth of the typical impact's height, the
+//     median of e's maxima over windows one period long (decays much shorter than the period leave
+//     a noise maximum in every gap) (onset clicks vary 2-fold in amplitude with their position
+//     between samples);
 //     the median peak over the envelope median (the contrast). Intervals within 25 % of the period are
 //     regular; the period is refined to their median, the speed variation is half their 5-95 %
 //     spread in % of it.
