@@ -265,10 +265,24 @@ void fill_envelope_spectrum(const std::vector<double>& power, BandTrain& t) {
     for (double& v : t.envelope_spectrum) v /= pmax;
 }
 
+// Step 3: the typical impact's envelope height: the median of the maxima of e over consecutive
+// windows one period (lag_f bins) long, each of which holds about one impact. The second rule of
+// choose_band: when the decays are much shorter than the period -- zeta 0.05 at 8 kHz, time
+// constant 0.4 ms -- every gap between two impacts also holds a noise maximum dominating +-0.45
+// periods, the median of those maxima can be one, and a fifth of it lets noise peaks in as impacts.
+double typical_impact_height(const std::vector<double>& e, double lag_f) {
+  const auto w = static_cast<std::size_t>(std::max(1.0, std::floor(lag_f)));
+  std::vector<double> maxima;
+  for (std::size_t a = 0; a + w <= e.size(); a += w) maxima.push_back(*std::max_element(e.begin() + static_cast<std::ptrdiff_t>(a),
+                                                                                         e.begin() + static_cast<std::ptrdiff_t>(a + w)));
+  if (maxima.empty()) maxima.push_back(*std::max_element(e.begin(), e.end()));
+  return median(maxima);
+}
+
 // Step 3: impacts are the maxima of e dominating +-0.45 periods (lag_f bins) and reaching a fifth
-// of the median such maximum; their contrast over the envelope median and their times (t.imp,
+// of the median such maximum, or (by_typical_height) of the typical impact's height; their contrast over the envelope median and their times (t.imp,
 // t.impact_times_s, t.contrast).
-void find_impacts(const std::vector<double>& e, double lag_f, BandTrain& t) {
+void find_impacts(const std::vector<double>& e, double lag_f, bool by_typical_height, BandTrain& t) {
   const std::size_t L = e.size();
   const auto half = static_cast<std::size_t>(std::max(1.0, std::floor(0.45 * lag_f)));
   std::vector<std::size_t> cand;
@@ -284,10 +298,10 @@ void find_impacts(const std::vector<double>& e, double lag_f, BandTrain& t) {
   }
   std::vector<double> heights;
   for (std::size_t i : peaks) heights.push_back(e[i]);
-  const double p_med = median(heights);
+  const double p_ref = by_typical_height ? typical_impact_height(e, lag_f) : median(heights);
   std::vector<std::size_t> imp;
   for (std::size_t i : peaks)
-    if (e[i] >= 0.2 * p_med) imp.push_back(i);
+    if (e[i] >= 0.2 * p_ref) imp.push_back(i);
   std::sort(imp.begin(), imp.end());
   std::vector<double> imp_heights;
   for (std::size_t i : imp) imp_heights.push_back(e[i]);
@@ -322,7 +336,8 @@ void interval_statistics(BandTrain& t) {
 }
 
 // Steps 2 and 3 for the band [f_lo, f_hi).
-BandTrain analyse_band(const RecordSpectrum& spectrum, double f_lo, double f_hi, double t_rec, const SurveyOptions& opt) {
+BandTrain analyse_band(const RecordSpectrum& spectrum, double f_lo, double f_hi, double t_rec, const SurveyOptions& opt,
+                       bool by_typical_height = false) {
   BandTrain t;
   std::vector<double> e = binned_band_power(spectrum, f_lo, f_hi, t);
   if (e.size() < 16) return t;
@@ -341,7 +356,7 @@ BandTrain analyse_band(const RecordSpectrum& spectrum, double f_lo, double f_hi,
   t.period_s = lag_f / fa;
   t.rate_hz = 1.0 / t.period_s;
   fill_envelope_spectrum(power, t);
-  find_impacts(e, lag_f, t);
+  find_impacts(e, lag_f, by_typical_height, t);
   interval_statistics(t);
   t.e = std::move(e);
   return t;
@@ -480,14 +495,17 @@ BandTrain choose_band(const RecordSpectrum& spectrum, const Kurtogram& k, double
   const std::vector<std::size_t> cands = candidate_cells(k, opt);
   chosen_cell = k.best;
   BandTrain tr = analyse_band(spectrum, k.cells[chosen_cell].f_lo_hz, k.cells[chosen_cell].f_hi_hz, t_rec, opt);
-  for (std::size_t i = 1; i < cands.size(); ++i) {
-    const auto& cell = k.cells[cands[i]];
-    BandTrain t2 = analyse_band(spectrum, cell.f_lo_hz, cell.f_hi_hz, t_rec, opt);
-    if (t2.train() && !tr.train()) {
-      tr = std::move(t2);
-      chosen_cell = cands[i];
+  // First with the impacts' threshold from the median envelope maximum (the lower one, so that weak
+  // impacts are kept), then, when no band forms a train with it, from the typical impact's height.
+  for (const bool by_typical_height : {false, true})
+    for (std::size_t i = by_typical_height ? 0 : 1; i < cands.size() && !tr.train(); ++i) {
+      const auto& cell = k.cells[cands[i]];
+      BandTrain t2 = analyse_band(spectrum, cell.f_lo_hz, cell.f_hi_hz, t_rec, opt, by_typical_height);
+      if (t2.train()) {
+        tr = std::move(t2);
+        chosen_cell = cands[i];
+      }
     }
-  }
   return tr;
 }
 
@@ -855,19 +873,28 @@ void propose_analyzer_bands(Proposal& p, const SurveyResult& res, double f, doub
 }
 
 // Step 6: window_s = min(4.5 decay time constants, 0.9 x the shortest interval t_min - pretrigger,
-// 10 s), at least the analyzer's 10 Morlet kernel widths; clip_level for float data in physical
-// units. False (and the reason in the evidence) when no window fits.
+// 10 s), raised to the analyzer's minimum (10 Morlet kernel widths, 80 samples) when that fits the
+// interval; clip_level for float data in physical units. False (and the reason in the evidence)
+// when no window fits.
 bool propose_window(Proposal& p, SurveyResult& res, double t_min, double fs) {
   const ModeCluster& mode = res.modes[0];
   const double f = mode.f_hz;
   const double tau = 1.0 / (2 * kPi * f * mode.zeta);
   const double min_window = 10.0 * p.analyzer.eta0 / (2 * kPi * f);
   const double by_period = 0.9 * t_min - p.analyzer.pretrigger_s;
-  double window = std::min(4.5 * tau, by_period);
-  window = std::min(window, 10.0);
-  if (window < std::max(min_window, 80.0 / fs)) {
+  // The analyzer's minimum window (pipeline::validate): 10 kernel widths and 80 samples.
+  const double shortest = std::max(min_window, 80.0 / fs);
+  double window = std::min({4.5 * tau, by_period, 10.0});
+  if (window < shortest && shortest <= by_period) {
+    // A decay shorter than the minimum (zeta 0.05 at 8 kHz: 4.5 tau = 1.8 ms, 46 samples at 25.6 kHz):
+    // the window is raised to the minimum, which then holds noise after the decay.
+    p.notes.push_back("window_s raised to the analyzer's minimum " + fmt(shortest * 1e3) + " ms (4.5 decay time constants are " +
+                      fmt(4.5 * tau * 1e3) + " ms)");
+    window = shortest;
+  }
+  if (window < shortest) {
     res.evidence.push_back("no proposal: the shortest interval (" + fmt(t_min * 1e3) + " ms) leaves no decay window of the analyzer's minimum " +
-                           fmt(min_window * 1e3) + " ms (10 Morlet kernel widths at " + fmt(f, 5) + " Hz)");
+                           fmt(shortest * 1e3) + " ms (10 Morlet kernel widths at " + fmt(f, 5) + " Hz, at least 80 samples)");
     return false;
   }
   p.analyzer.window_s = window;
@@ -972,7 +999,8 @@ SurveyResult run_survey(std::span<const double> input, double fs, const SurveyOp
   // 51 "impacts" for 40).
   if (have_mode && !tr.train()) {
     const double fm = res.modes[0].f_hz;
-    const BandTrain t2 = analyse_band(spectrum, 0.85 * fm, std::min(1.15 * fm, 0.5 * fs), t_rec, opt);
+    BandTrain t2 = analyse_band(spectrum, 0.85 * fm, std::min(1.15 * fm, 0.5 * fs), t_rec, opt);
+    if (!t2.train()) t2 = analyse_band(spectrum, 0.85 * fm, std::min(1.15 * fm, 0.5 * fs), t_rec, opt, true);
     if (t2.train()) {
       const auto first = res.evidence.begin() + static_cast<std::ptrdiff_t>(train_evidence);
       res.evidence.erase(first, first + 3);

@@ -15,8 +15,11 @@
 //     highest peak of the envelope smoothed over 0.6 / max_rate (or its shortest sub-multiple standing
 //     >= 40 % as high) is the impact period;
 //     the envelope spectrum (|DFT of e - mean|) shows the rate and its harmonics.
-//  3. Impacts: maxima of e that dominate +-0.45 periods and exceed a fifth of the median maximum (onset clicks vary 2-fold in
-//     amplitude with their position between samples);
+//  3. Impacts: maxima of e that dominate +-0.45 periods and exceed a fifth of the median such
+//     maximum; when no candidate band forms a train so, a fifth of the typical impact's height, the
+//     median of e's maxima over windows one period long (decays much shorter than the period leave
+//     a noise maximum in every gap) (onset clicks vary 2-fold in amplitude with their position
+//     between samples);
 //     the median peak over the envelope median (the contrast). Intervals within 25 % of the period are
 //     regular; the period is refined to their median, the speed variation is half their 5-95 %
 //     spread in % of it.
@@ -48,8 +51,9 @@
 //         0.6 x the relative distance of the nearest line);
 //       window_s = min(4.5 time constants 1/(2 pi f zeta) (the default's 35 ms at 854 Hz, zeta
 //         0.024), 0.9 x the shortest interval - pretrigger), and at least the analyzer's minimum of
-//         10 Morlet kernel widths; clip_level above the record's peak when the samples exceed 1.0
-//         (float files in physical units have no full scale).
+//         10 Morlet kernel widths and 80 samples (when that fits the interval); clip_level above
+//         the record's peak when the samples exceed 1.0 (float files in physical units have no
+//         full scale).
 #pragma once
 
 #include <cstddef>
