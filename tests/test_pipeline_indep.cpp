@@ -473,3 +473,68 @@ TEST(PipelineIndep, NoOkIntervalMissesTheTruthOnANoisyOverlappingRecord) {
 
 }  // namespace
 }  // namespace ridgewatch::test
+
+namespace ridgewatch::test {
+namespace {
+
+// ---------------------------------------------------------------------------------------------------
+// 6. ok is a promise when a mesh line sits within a DFT bin of the mode: 854 Hz, zeta 0.01, one impact
+//    per revolution of a shaft ramping 38 -> 42 Hz (40 impacts per second), a 22-tooth mesh line at
+//    836 -> 924 Hz (25 % of the impact amplitude; it crosses the mode after ~1.2 s), 40 dB, 51.2 kHz,
+//    float, the configuration `ridgewatch survey` proposes for it (bench_ok_coverage case 51200 854 40
+//    0.01 40 505 float). The ML segment (19 ms, 52 Hz bins) cannot resolve the line 14-18 Hz below
+//    the mode: the one-mode fit took mode and line for one damped sinusoid and 9 events were ok with
+//    zeta 43-66 % high and intervals of +-11 % that missed the truth. Asserted: every event is a true
+//    impact, there are enough of them to mean something, and no ok interval misses the true zeta.
+TEST(PipelineIndep, NoOkIntervalMissesTheTruthWithAMeshLineWithinABinOfTheMode) {
+  indep::RigSpec s;
+  const double a = 0.25;
+  s.fs_hz = 51200.0;
+  s.duration_s = 6.0;
+  s.rev_hz = 40.0 * 0.95;
+  s.ramp_rel = 0.10 / 0.95;
+  s.teeth = 22;
+  s.mesh_amp = {0.25 * a, 0.15 * a};
+  s.hum_amp = {0.10 * a, 0.05 * a};
+  s.noise_sd = a * std::pow(10.0, -40.0 / 20.0);
+  s.response.f_hz = 854.0;
+  s.response.zeta = 0.01;
+  s.response.amplitude = a;
+  s.amp_jitter_rel = 0.1;
+  s.first_impact_s = 0.5 / 40.0 + 0.01;
+  s.seed = 505;
+  indep::RigRecord rec = indep::make_rig_record(s);
+  for (double& v : rec.x) v = static_cast<float>(v);  // the float32 file's samples
+  PipelineConfig cfg;
+  cfg.sample_rate_hz = rec.fs_hz;
+  // The survey's proposal for this record, written out (the test does not depend on the survey).
+  cfg.detector.band_lo_hz = 727.7;
+  cfg.detector.band_hi_hz = 984.6;
+  cfg.detector.trigger_ratio = 3.0;
+  cfg.detector.holdoff_s = 0.0119618;
+  cfg.analyzer.f_expected_hz = 856.164;
+  cfg.analyzer.window_s = 0.0195313;
+  cfg.analyzer.clip_level = NAN;
+  const PipeRun r = run_pipeline(cfg, rec.x);
+  expect_intervals_sane(r.events);
+  std::size_t ok = 0, misses = 0;
+  for (const auto& e : r.events) {
+    const long k = match(rec.onset_s, e.t_s, 0.002);
+    ASSERT_GE(k, 0) << "false impact at " << e.t_s;
+    if (e.status != ImpactStatus::ok) continue;
+    ++ok;
+    const double zt = rec.zeta[static_cast<std::size_t>(k)];
+    const bool covers = e.zeta_ci95_lo <= zt && zt <= e.zeta_ci95_hi;
+    misses += !covers;
+    EXPECT_TRUE(covers) << "ok interval [" << e.zeta_ci95_lo << ", " << e.zeta_ci95_hi << "] misses zeta " << zt
+                        << " at t = " << e.t_s;
+  }
+  std::cout << "mesh line within a bin: " << r.events.size() << " events, " << ok << " ok, " << misses
+            << " ok intervals miss the truth\n";
+  // The detector finds about half of these overlapping decays (116 of 240 measured); 100 keeps the
+  // assertion about ok events from passing on an empty run.
+  EXPECT_GE(r.events.size(), 100u);
+}
+
+}  // namespace
+}  // namespace ridgewatch::test

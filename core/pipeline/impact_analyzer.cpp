@@ -299,6 +299,7 @@ dsp::DampingEstimate ImpactAnalyzer::ml_estimate(const Frame& fr, const RidgeTra
   if (out.fitted) {
     ml = out.estimate;
     ml.snr_db = snr_db;
+    if (out.unresolved_line && ml.status == dsp::EstimateStatus::ok) ml.status = dsp::EstimateStatus::inconsistent;
   }
   return ml;
 }

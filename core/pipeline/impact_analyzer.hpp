@@ -75,6 +75,10 @@
 //     the same way; the cross-check below still marks such events when ridge-ls, which sees both
 //     modes, disagrees. (tests/test_pipeline_indep.cpp, 3 seeds, 861 impacts: largest |zeta error| of
 //     an ok event 8.2 %.)
+//     A one-mode fit that passes the precision rule can still hide a steady line within a bin of the
+//     mode (the two look like one damped sinusoid over the segment): MlStep::unresolved_component
+//     fits it with a line 1.25 bins either side; when the line is significant, unresolved, steady and
+//     moves zeta outside the one-mode interval, the estimate is inconsistent.
 //  5. Cross-check of ml against ridge-ls (core/dsp/cross_check.hpp, shared with `ridgewatch modes`,
 //     the analyzer's limits): more than 4 combined standard uncertainties apart (plus a 1 % / 1e-4
 //     allowance) -> inconsistent.

@@ -42,6 +42,9 @@ class MlStep {
     /// White-equivalent noise variance of the full-rate input from the residual of the fit with a
     /// line component when that fit was used; NaN otherwise.
     double resid_var = NAN;
+    /// The one-mode fit passed the precision rule, but a second component that the segment does not
+    /// resolve from the mode lowers the residual significantly (unresolved_component): not ok.
+    bool unresolved_line = false;
   };
   /// Fits `seg` (segment_length(a0, ...) samples from analysis-rate sample a0 of the window) started
   /// from (f_d, zeta0). The estimate's window is in seconds from the window start and its amplitude
@@ -66,6 +69,17 @@ class MlStep {
   /// The second fit (with a line component); true when it replaced the first in with_line_.
   bool fit_with_line(std::size_t pick, std::span<const double> seg, const dsp::ModeGuess& guess,
                      const dsp::MlFitOptions& mo, double fm);
+  struct LineTest {
+    bool significant = false;  ///< the line lowers the residual beyond noise (F test at kLineLevel)
+    bool resolved = false;     ///< the fitted components are at least kLineSepBins apart
+    double p_value = 1.0;      ///< the F test's p-value (1 when the fit failed)
+  };
+  /// The fit with a line component started at fl (into try_) and its F test against the one-mode fit.
+  LineTest test_line(std::size_t pick, std::span<const double> seg, const dsp::ModeGuess& guess,
+                     const dsp::MlFitOptions& mo, double fl, int max_evaluations);
+  /// A precise one-mode fit: does a component within a bin of the mode lower the residual significantly?
+  bool unresolved_component(std::size_t pick, std::span<const double> seg, const dsp::ModeGuess& guess,
+                            const dsp::MlFitOptions& mo, double fm);
 };
 
 }  // namespace ridgewatch::pipeline
