@@ -269,16 +269,54 @@ struct FitProblem {
   std::vector<std::size_t> row_offset;    // by window index, npos if not a row
   Eigen::Index rows = 0;
   double inv_sigma = 1.0;
+  // Windows simulated per evaluation: the row windows and, back along the chain, the predecessors
+  // whose carried tails they start from. A held-out window that carries into no row window (the last
+  // of each run of impacts) cannot change a residual: skipping it leaves every number as it was.
+  std::vector<char> needed;
+  // The chain at the parameters of the latest residual evaluation: LM evaluates the residuals at a
+  // point and then its Jacobian there, which starts from the same chain (compared exactly).
+  mutable FitParams cached_p;
+  mutable ModelFitter::Chain cached_chain;
+  mutable bool cached = false;
 
   void setup() {
     const auto& seg = fitter->segmentation();
     row_offset.assign(seg.windows.size(), static_cast<std::size_t>(-1));
+    needed.assign(seg.windows.size(), 0);
     rows = 0;
     for (std::size_t w : row_windows) {
       row_offset[w] = static_cast<std::size_t>(rows);
       rows += static_cast<Eigen::Index>(seg.windows[w].end - seg.windows[w].begin);
+      needed[w] = 1;
     }
+    // A predecessor always comes earlier in the record: one backward pass closes the set.
+    for (std::size_t w = seg.windows.size(); w-- > 0;)
+      if (needed[w] && seg.windows[w].predecessor >= 0) needed[static_cast<std::size_t>(seg.windows[w].predecessor)] = 1;
     inv_sigma = 1.0 / seg.noise_sd;
+    cached = false;
+  }
+  /// Model output of the needed windows (ModelFitter::evaluate restricted to `needed`).
+  ModelFitter::Chain chain(const FitParams& p) const {
+    const auto& seg = fitter->segmentation();
+    const WindowSimulator sim(fitter->rig(), fitter->physics(layout, p.u), seg.sample_rate_hz);
+    ModelFitter::Chain c;
+    c.out.resize(seg.windows.size());
+    c.end.resize(seg.windows.size());
+    for (std::size_t w = 0; w < seg.windows.size(); ++w)
+      if (needed[w]) fitter->simulate_window(sim, w, p, c, c.out[w], c.end[w]);
+    return c;
+  }
+  static bool same(const FitParams& a, const FitParams& b) {
+    return a.polarity == b.polarity && a.u.size() == b.u.size() && a.u == b.u && a.ln_force == b.ln_force &&
+           a.shift == b.shift;
+  }
+  const ModelFitter::Chain& chain_cached(const FitParams& p) const {
+    if (!cached || !same(p, cached_p)) {
+      cached_chain = chain(p);
+      cached_p = p;
+      cached = true;
+    }
+    return cached_chain;
   }
   int inputs() const {
     return (globals_free ? static_cast<int>(layout.size()) : 0) + 2 * static_cast<int>(free_windows.size());
@@ -317,13 +355,12 @@ struct FitProblem {
     for (std::size_t w : row_windows) fill_rows(w, c.out[w], f.data() + row_offset[w]);
   }
   int operator()(const Eigen::VectorXd& x, Eigen::VectorXd& f) const {
-    const ModelFitter::Chain c = fitter->evaluate(layout, unpack(x));
-    residuals(c, f);
+    residuals(chain_cached(unpack(x)), f);
     return 0;
   }
   int df(const Eigen::VectorXd& x, Eigen::MatrixXd& J) const {
     const FitParams p = unpack(x);
-    const ModelFitter::Chain c = fitter->evaluate(layout, p);
+    const ModelFitter::Chain& c = chain_cached(p);
     Eigen::VectorXd f0(rows), f1(rows);
     residuals(c, f0);
     J.setZero(rows, inputs());
@@ -336,8 +373,7 @@ struct FitProblem {
         FitParams q = p;
         const double h = 1e-6 * std::max(1.0, std::abs(p.u[i]));
         q.u[i] += h;
-        const ModelFitter::Chain cq = fitter->evaluate(layout, q);
-        residuals(cq, f1);
+        residuals(chain(q), f1);
         J.col(col) = (f1 - f0) / h;
       }
     }
