@@ -25,6 +25,7 @@
 #include "daemon/network_outputs.hpp"
 #include "daemon/notifier.hpp"
 #include "daemon/sources.hpp"
+#include "daemon/streams_daemon.hpp"
 
 namespace ridgewatch::daemon {
 
@@ -35,20 +36,6 @@ std::atomic<bool> g_reload{false};
 std::atomic<bool> g_latch_reset{false};
 
 using Clock = std::chrono::steady_clock;
-
-// Damping ratio with 4 significant digits ("-" when not estimated).
-std::string format_zeta(double zeta) { return std::isfinite(zeta) ? fmt::format("{:.4g}", zeta) : "-"; }
-
-std::string iso8601_utc(std::chrono::system_clock::time_point tp) {
-  const auto secs = std::chrono::time_point_cast<std::chrono::seconds>(tp);
-  const auto ms = std::chrono::duration_cast<std::chrono::milliseconds>(tp - secs).count();
-  const std::time_t t = std::chrono::system_clock::to_time_t(secs);
-  std::tm tm{};
-  gmtime_r(&t, &tm);
-  char buf[32];
-  std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%S", &tm);
-  return fmt::format("{}.{:03}Z", buf, ms);
-}
 
 }  // namespace
 
@@ -460,6 +447,7 @@ const DaemonStats& Daemon::stats() const { return impl_->stats; }
 
 int Daemon::run() {
   Impl& d = *impl_;
+  if (!d.cfg.streams.empty()) return run_streams(d.options, d.stats, g_stop, g_reload, g_latch_reset);
   try {
     d.source = d.options.source_factory ? d.options.source_factory(d.cfg.source)
                                          : open_source(d.cfg, d.options.config_path.empty() ? "configuration" : d.options.config_path);
