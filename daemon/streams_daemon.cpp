@@ -283,6 +283,7 @@ void StreamsDaemon::acquire_replay(Device& d) {
       slots[k] = d.streams[k]->ring->write_space(want);  // shorter where the storage wraps
       n = std::min(n, slots[k].size());
     }
+    if (n == 0) continue;  // no room after all (cannot happen after the wait above; never read 0 = end)
     const std::size_t got = d.streams[0]->replay->read_float(slots[0].first(n));
     if (got == 0) break;
     for (std::size_t k = 1; k < d.streams.size(); ++k) {

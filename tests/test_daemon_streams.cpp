@@ -150,7 +150,7 @@ TEST_F(DaemonStreams, SixteenChannelsEqualAnalyzePerChannel) {
   EXPECT_GT(total, kChannels * 15);
 }
 
-// Three rigs: a and c steady, b with a damping step (+60 %) half way. Each stream has its own
+// Three rigs: a and c steady, b with a damping step (+50 %) half way. Each stream has its own
 // trend (configured baseline: 2 s are too short to learn one) and relays; c has its own pipeline
 // (a mode at 1200 Hz: its own f_expected_hz and detector band). Only b's alarm and b's relay go,
 // and the top-level relay (the worst of all streams) with it.
@@ -162,9 +162,10 @@ TEST_F(DaemonStreams, DampingStepRaisesOnlyThatStreamsAlarm) {
   for (std::size_t ch = 0; ch < 3; ++ch) {
     std::vector<double> x(n, 0.0);
     const double f = ch == 2 ? 1200.0 : 860.0;
-    for (double t = 0.013 + 0.003 * static_cast<double>(ch); t < duration; t += 0.04) {
-      indep::Mode m{.f_hz = f, .zeta = 0.01, .amplitude = 0.3 * rng.uniform(0.9, 1.1), .phase_rad = 0.0};
-      if (ch == 1 && t > step_s) m.zeta = 0.016;
+    // 20 impacts/s; ζ = 0.02 decays 40 dB in 43 ms (860 Hz), within the 50 ms between impacts.
+    for (double t = 0.013 + 0.003 * static_cast<double>(ch); t < duration; t += 0.05) {
+      indep::Mode m{.f_hz = f, .zeta = 0.02, .amplitude = 0.3 * rng.uniform(0.9, 1.1), .phase_rad = 0.0};
+      if (ch == 1 && t > step_s) m.zeta = 0.03;
       indep::add_decay(x, fs, t, m);
     }
     for (std::size_t i = 0; i < n; ++i) frames[3 * i + ch] = x[i] + 0.001 * rng.gauss();
@@ -176,7 +177,7 @@ TEST_F(DaemonStreams, DampingStepRaisesOnlyThatStreamsAlarm) {
                            "output: {events: " + events + ", csv: " + csv + "}\n"
                            "gpio: {enabled: true, alert_line: 1}\n"
                            "pipeline:\n  analyzer: {f_expected_hz: 860}\n  detector: {band_lo_hz: 730, band_hi_hz: 990}\n"
-                           "  trend: {baseline_zeta: 0.01, baseline_ln_sd: 0.05}\n"
+                           "  trend: {baseline_zeta: 0.02, baseline_ln_sd: 0.05}\n"
                            "streams:\n"
                            "  - {name: a, channel: 0, gpio: {alert_line: 10}}\n"
                            "  - {name: b, channel: 1, gpio: {alert_line: 11}}\n"
@@ -208,7 +209,7 @@ TEST_F(DaemonStreams, DampingStepRaisesOnlyThatStreamsAlarm) {
   const auto streams = by_stream(jsonl(slurp(events)));
   ASSERT_EQ(streams.size(), 3u);
   for (const auto& [name, ev] : streams) {
-    ASSERT_GE(ev.size(), 50u) << name;  // 25 impacts/s for 2.4 s
+    ASSERT_GE(ev.size(), 45u) << name;  // 20 impacts/s for 2.4 s
     std::size_t ok = 0;
     bool alarmed = false, alarmed_before_step = false;
     for (const auto& e : ev) {
