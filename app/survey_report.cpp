@@ -67,7 +67,7 @@ json to_json(const survey::SurveyResult& r, const std::string& name) {
   json modes = json::array();
   for (const auto& m : r.modes)
     modes.push_back({{"f_hz", num(m.f_hz)}, {"zeta", num(m.zeta)}, {"zeta_quartiles", {num(m.zeta_q1), num(m.zeta_q3)}},
-                     {"amplitude", num(m.amplitude)}, {"segments", m.segments}});
+                     {"amplitude", num(m.amplitude)}, {"segments", m.segments}, {"eta0_needed", num(m.eta0_needed)}});
   j["modes"] = modes;
   j["segments_analysed"] = r.segments_analysed;
   j["decay_left_at_next_impact"] = num(r.decay_per_period);
@@ -78,7 +78,7 @@ json to_json(const survey::SurveyResult& r, const std::string& name) {
     const auto& p = *r.proposal;
     json d = {{"band_lo_hz", p.detector.band_lo_hz}, {"band_hi_hz", p.detector.band_hi_hz},
               {"trigger_ratio", p.detector.trigger_ratio}, {"holdoff_s", p.detector.holdoff_s}};
-    json a = {{"f_expected_hz", p.analyzer.f_expected_hz}, {"band_rel", p.analyzer.band_rel},
+    json a = {{"f_expected_hz", p.analyzer.f_expected_hz}, {"band_rel", p.analyzer.band_rel}, {"eta0", p.analyzer.eta0},
               {"ml_band_rel", p.analyzer.ml_band_rel}, {"window_s", p.analyzer.window_s},
               {"clip_level", p.analyzer.clip_level}};
     j["proposal"] = {{"pipeline", {{"detector", d}, {"analyzer", a}}}, {"notes", p.notes}};
@@ -142,6 +142,7 @@ std::string proposal_yaml(const survey::Proposal& p) {
     << "  analyzer:\n"
     << "    f_expected_hz: " << f(p.analyzer.f_expected_hz) << "\n"
     << "    band_rel: " << f(p.analyzer.band_rel) << "\n"
+    << "    eta0: " << f(p.analyzer.eta0) << "\n"
     << "    ml_band_rel: " << f(p.analyzer.ml_band_rel) << "\n"
     << "    window_s: " << f(p.analyzer.window_s) << "\n"
     << "    clip_level: " << f(p.analyzer.clip_level) << "\n";
@@ -189,6 +190,7 @@ int survey_and_report(const std::vector<double>& samples, double fs, const std::
     c.pipeline.detector.holdoff_s = p.detector.holdoff_s;
     c.pipeline.analyzer.f_expected_hz = p.analyzer.f_expected_hz;
     c.pipeline.analyzer.band_rel = p.analyzer.band_rel;
+    c.pipeline.analyzer.eta0 = p.analyzer.eta0;
     c.pipeline.analyzer.ml_band_rel = p.analyzer.ml_band_rel;
     c.pipeline.analyzer.window_s = p.analyzer.window_s;
     c.pipeline.analyzer.clip_level = p.analyzer.clip_level;

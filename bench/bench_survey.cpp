@@ -7,6 +7,8 @@
 //                                any), numbered as in the full sweep; no controls
 //   bench_survey controls        only the 20 controls
 //   bench_survey case FS F RATE ZETA SNR SEED [float] [wobble]   one record, verbose
+//   bench_survey hammer HIT.wav  the real hammer hit repeated 5x with gaps (tests/test_survey.cpp):
+//                                the survey's report, then analyze's events with the proposal
 #include <chrono>
 #include <cstdlib>
 #include <ctime>
@@ -70,16 +72,7 @@ int sweep_mode(int seeds, const SweepFilter& filter) {
     for (double rate : rates)
       for (double z : zetas)
         for (int s = 0; s < seeds; ++s) {
-          survey_cases::Case c;
-          c.f_hz = f;
-          c.rate_hz = rate;
-          c.zeta = z;
-          c.seed = static_cast<std::uint64_t>(100 + n);
-          c.fs_hz = rates_fs[n % 4];
-          c.snr_db = snrs[(n / 4 + s) % 3];
-          c.float32 = n % 2;
-          c.wobble = (n / 2) % 2;
-          c.duration_s = std::max(6.0, 40.0 / rate);
+          const survey_cases::Case c = survey_cases::sweep_case(f, rate, z, s, n);
           ++n;
           if (!filter.match(f, rate, z)) continue;
           ++run;
@@ -116,6 +109,23 @@ int sweep_mode(int seeds, const SweepFilter& filter) {
   return 0;
 }
 
+int hammer_mode(const std::string& hit) {
+  const std::string dir = std::filesystem::temp_directory_path() / ("bench_survey-" + std::to_string(getpid()));
+  std::filesystem::create_directories(dir);
+  const auto h = survey_cases::write_hammer_record(hit, dir);
+  std::ostringstream out, err;
+  ridgewatch::cli::run_survey({h.wav, "--write-config", dir + "/hammer5.yaml"}, out, err);
+  std::cout << out.str() << err.str();
+  if (!std::filesystem::exists(dir + "/hammer5.yaml")) return 0;
+  std::ostringstream aout, aerr;
+  ridgewatch::cli::run_analyze({h.wav, "--config", dir + "/hammer5.yaml"}, aout, aerr);
+  std::cout << aout.str() << aerr.str();
+  const auto o = survey_cases::survey_then_analyze(h.wav, dir + "/hammer5.yaml", h.onsets, h.zetas, 0.2);
+  std::printf("hammer: proposal %s f %.1f Hz, found %zu/%zu, false %zu, ok %zu (files in %s)\n", o.proposal ? "yes" : "no",
+              o.f_expected_hz, o.found, o.truth, o.false_events, o.ok, dir.c_str());
+  return 0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -132,6 +142,7 @@ int main(int argc, char** argv) {
   if (mode == "controls") {
     return sweep_mode(0, SweepFilter{});  // no seeds per cell: only the 20 controls
   }
+  if (mode == "hammer" && argc >= 3) return hammer_mode(argv[2]);
   if (mode == "case" && argc >= 8) {
     survey_cases::Case c;
     c.fs_hz = std::atof(argv[2]);
@@ -157,6 +168,6 @@ int main(int argc, char** argv) {
     std::cout << o.analyze_err;
     return 0;
   }
-  std::cerr << "usage: bench_survey time | sweep [SEEDS [F [RATE [ZETA]]]] | controls | case FS F RATE ZETA SNR SEED [float] [wobble] [none]\n";
+  std::cerr << "usage: bench_survey time | sweep [SEEDS [F [RATE [ZETA]]]] | controls | case FS F RATE ZETA SNR SEED [float] [wobble] [none] | hammer HIT.wav\n";
   return 2;
 }

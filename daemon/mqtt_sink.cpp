@@ -1,11 +1,8 @@
 #include "daemon/mqtt_sink.hpp"
 
 #include <mosquitto.h>
-#include <netinet/in.h>
-#include <netinet/tcp.h>
 #include <poll.h>
 #include <pthread.h>
-#include <sys/socket.h>
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
@@ -92,6 +89,7 @@ MqttSink::MqttSink(const app::MqttConfig& config, const std::string& source_name
       spool_(open_spool(config)) {
   std::call_once(g_lib_init, [] { mosquitto_lib_init(); });
   while (!prefix_.empty() && prefix_.back() == '/') prefix_.pop_back();
+  events_topic_ = prefix_ + "/events";
   if (!cfg_.password_file.empty()) password_ = read_password(cfg_.password_file);
   check_readable("ca_file", cfg_.tls.ca_file);
   check_readable("cert_file", cfg_.tls.cert_file);
@@ -167,12 +165,9 @@ MqttCounters MqttSink::counters() const {
   return c;
 }
 
-void MqttSink::cb_connect(struct mosquitto*, void* self, int rc) { static_cast<MqttSink*>(self)->on_connect(rc); }
-void MqttSink::cb_publish(struct mosquitto*, void* self, int mid) { static_cast<MqttSink*>(self)->on_publish(mid); }
-
 void MqttSink::on_connect(int rc) {
   if (rc != 0) {
-    // Handled after mosquitto_loop() returns (the client cannot be destroyed inside its callback).
+    // Handled after the link's read() returns (the link cannot be destroyed inside its callback).
     refused_ = std::string("broker refused the connection: ") + mosquitto_connack_string(rc);
     return;
   }
@@ -224,36 +219,27 @@ bool MqttSink::waiting_for(int mid) const {
 }
 
 void MqttSink::track(int mid, std::uint64_t seq, int qos) {
-  // QoS 0 has no acknowledgement: the message counts as sent once libmosquitto has it (its publish
-  // callback may already have run inside mosquitto_publish, before the id was known here).
+  // QoS 0 has no acknowledgement: the message counts as sent once the link has it (libmosquitto's
+  // publish callback may already have run inside mosquitto_publish, before the id was known here).
   inflight_.push_back(Inflight{mid, seq, qos == 0});
   if (qos == 0) retire_acknowledged();
 }
 
 bool MqttSink::connect() {
-  mosq_ = mosquitto_new(client_id_.c_str(), true, this);
-  if (!mosq_) {
-    log(SPDLOG_LEVEL_ERROR, "MQTT: cannot create a client (out of memory)");
+  MqttLink::Options o;
+  o.client_id = client_id_;
+  o.username = cfg_.username;
+  o.password = password_;
+  o.will_topic = prefix_ + "/status";
+  o.will_payload = "{\"state\":\"offline\",\"source\":" + nlohmann_quote(source_) + "}";
+  o.keepalive_s = static_cast<int>(std::lround(cfg_.keepalive_s));
+  std::string error;
+  link_ = make_mqtt_link(cfg_, o, *this, error);
+  if (!link_) {
+    drop_connection(error);
     return false;
   }
-  mosquitto_int_option(mosq_, MOSQ_OPT_PROTOCOL_VERSION, MQTT_PROTOCOL_V311);
-  mosquitto_max_inflight_messages_set(mosq_, static_cast<unsigned>(kWindow + kMaxPendingAlarms + 2));
-  mosquitto_connect_callback_set(mosq_, &MqttSink::cb_connect);
-  mosquitto_publish_callback_set(mosq_, &MqttSink::cb_publish);
-  if (!cfg_.username.empty()) mosquitto_username_pw_set(mosq_, cfg_.username.c_str(), password_.empty() ? nullptr : password_.c_str());
-  if (!cfg_.tls.ca_file.empty()) {
-    const int rc = mosquitto_tls_set(mosq_, cfg_.tls.ca_file.c_str(), nullptr,
-                                     cfg_.tls.cert_file.empty() ? nullptr : cfg_.tls.cert_file.c_str(),
-                                     cfg_.tls.key_file.empty() ? nullptr : cfg_.tls.key_file.c_str(), nullptr);
-    if (rc != MOSQ_ERR_SUCCESS) {
-      drop_connection(std::string("TLS setup failed: ") + mosquitto_strerror(rc));
-      return false;
-    }
-  }
-  const std::string will = "{\"state\":\"offline\",\"source\":" + nlohmann_quote(source_) + "}";
-  mosquitto_will_set(mosq_, (prefix_ + "/status").c_str(), static_cast<int>(will.size()), will.data(), 1, true);
-  const int rc = mosquitto_connect(mosq_, cfg_.host.c_str(), static_cast<int>(cfg_.port),
-                                   static_cast<int>(std::lround(cfg_.keepalive_s)));
+  const int rc = link_->connect(cfg_.host, static_cast<int>(cfg_.port));
   if (rc != MOSQ_ERR_SUCCESS) {
     drop_connection("cannot connect to " + cfg_.host + ":" + std::to_string(cfg_.port) + ": " +
                     (rc == MOSQ_ERR_ERRNO ? std::string(std::strerror(errno)) : std::string(mosquitto_strerror(rc))));
@@ -266,10 +252,7 @@ bool MqttSink::connect() {
 }
 
 void MqttSink::drop_connection(const std::string& why) {
-  if (mosq_) {
-    mosquitto_destroy(mosq_);
-    mosq_ = nullptr;
-  }
+  link_.reset();
   const bool was = connected_;
   connected_ = false;
   connected_flag_.store(false);
@@ -286,31 +269,19 @@ void MqttSink::drop_connection(const std::string& why) {
   backoff_ = std::min(backoff_ * 2.0, std::chrono::duration<double>(kBackoffMax_s));
 }
 
-void MqttSink::set_cork(bool on) {
-  // TCP_CORK: the PUBLISH packets of one round (libmosquitto writes each with its own write(2)) are
-  // collected in the socket and leave in as few full segments as possible when the cork is pulled,
-  // instead of one segment (and one trip through the loopback or network stack) per event.
-  const int fd = mosq_ ? mosquitto_socket(mosq_) : -1;
-  if (fd < 0) return;
-  const int v = on ? 1 : 0;
-  ::setsockopt(fd, IPPROTO_TCP, TCP_CORK, &v, sizeof v);
-}
-
 void MqttSink::pump() {
   // Events from the spool, in seq order, keeping at most kWindow in flight. Waiting for 32 or 128 to
   // be acknowledged before refilling stalled on the broker's Nagle-delayed PUBACKs (our delayed TCP
   // ACKs are no longer carried by outgoing data): a 15 000-event backlog then took 1.2-2 s to deliver
   // instead of 0.04 s.
   bool corked = false;
-  while (mosq_ && inflight_.size() < kWindow) {
+  while (link_ && inflight_.size() < kWindow) {
     batch_.clear();
     if (spool_.read(sent_through_, kWindow - inflight_.size(), batch_) == 0) break;
-    if (!corked) set_cork(corked = true);
-    const std::string topic = prefix_ + "/events";
+    if (!corked) link_->burst(corked = true);
     for (const auto& m : batch_) {
       int mid = 0;
-      const int rc = mosquitto_publish(mosq_, &mid, topic.c_str(), static_cast<int>(m.payload.size()), m.payload.data(),
-                                       static_cast<int>(cfg_.qos), false);
+      const int rc = link_->publish(&mid, events_topic_, m.payload, static_cast<int>(cfg_.qos), false);
       if (rc != MOSQ_ERR_SUCCESS) {
         drop_connection(std::string("publish failed: ") + mosquitto_strerror(rc));
         return;
@@ -326,20 +297,16 @@ void MqttSink::pump() {
   }
   for (const auto& a : alarms) {
     int mid = 0;
-    if (mosquitto_publish(mosq_, &mid, (prefix_ + "/alarm").c_str(), static_cast<int>(a.size()), a.data(), 1, true) ==
-        MOSQ_ERR_SUCCESS)
-      track(mid, 0, 1);
+    if (link_->publish(&mid, prefix_ + "/alarm", a, 1, true) == MOSQ_ERR_SUCCESS) track(mid, 0, 1);
   }
   const auto now = Clock::now();
   if (telemetry_ && now - last_status_ >= status_interval_) {
     const std::string s = telemetry_->status_json();
     int mid = 0;
-    if (mosquitto_publish(mosq_, &mid, (prefix_ + "/status").c_str(), static_cast<int>(s.size()), s.data(), 1, true) ==
-        MOSQ_ERR_SUCCESS)
-      track(mid, 0, 1);
+    if (link_->publish(&mid, prefix_ + "/status", s, 1, true) == MOSQ_ERR_SUCCESS) track(mid, 0, 1);
     last_status_ = now;
   }
-  if (corked) set_cork(false);
+  if (corked) link_->burst(false);
 }
 
 bool MqttSink::check(int rc) {
@@ -357,17 +324,10 @@ bool MqttSink::check(int rc) {
 
 void MqttSink::wait_socket(std::chrono::milliseconds timeout) {
   pollfd p{};
-  p.fd = mosquitto_socket(mosq_);
+  p.fd = link_->socket();
   if (p.fd < 0) return;
-  p.events = static_cast<short>(POLLIN | (mosquitto_want_write(mosq_) ? POLLOUT : 0));
+  p.events = static_cast<short>(POLLIN | (link_->want_write() ? POLLOUT : 0));
   ::poll(&p, 1, static_cast<int>(timeout.count()));
-}
-
-int MqttSink::read_socket() {
-  // libmosquitto reads packets until a read fails with EAGAIN, but tests errno also after a read that
-  // succeeded: a stale EAGAIN from an earlier call would end the loop after one packet.
-  errno = 0;
-  return mosquitto_loop_read(mosq_, 1);
 }
 
 bool MqttSink::unsent_work() {
@@ -390,13 +350,13 @@ void MqttSink::run() {
     if (stopping) {
       const bool drained = spool_.depth() == 0 && inflight_.empty();
       // Without a connection, give up at once when the next attempt would come after the deadline.
-      if (drained || now >= deadline || (!mosq_ && next_attempt_ >= deadline)) break;
+      if (drained || now >= deadline || (!link_ && next_attempt_ >= deadline)) break;
     }
     if (now - last_persist_ >= std::chrono::seconds(1)) {
       spool_.persist();
       last_persist_ = now;
     }
-    if (!mosq_) {
+    if (!link_) {
       if (now < next_attempt_) {
         // Until the next attempt (a stop ends the wait; while stopping, the deadline does).
         const auto until = std::min(next_attempt_, now + std::chrono::milliseconds(100));
@@ -413,22 +373,22 @@ void MqttSink::run() {
     if (!connected_) {
       // CONNACK pending.
       wait_socket(std::chrono::milliseconds(10));
-      if (check(read_socket())) check(mosquitto_loop_misc(mosq_));
+      if (check(link_->read())) check(link_->misc());
       continue;
     }
     // One round: the acknowledgements that arrived (each PUBACK frees its event in the spool), then
-    // everything the spool holds beyond what was sent (up to the window) in one corked burst.
-    if (!check(read_socket())) continue;
+    // everything the spool holds beyond what was sent (up to the window) in one burst.
+    if (!check(link_->read())) continue;
     finish_round();
     pump();
-    if (!mosq_) continue;
-    if (mosquitto_want_write(mosq_) && !check(mosquitto_loop_write(mosq_, 1))) continue;  // socket was full
-    if (!check(mosquitto_loop_misc(mosq_))) continue;  // keepalive
+    if (!link_) continue;
+    if (link_->want_write() && !check(link_->write())) continue;  // plain TCP: the round's one send(2)
+    if (!check(link_->misc())) continue;  // keepalive
     // Pacing: at most one round per kRound (events that arrive meanwhile wait in the spool and go
     // together), so the sender's cost per event does not grow with how fast events come.
     std::this_thread::sleep_until(now + kRound);
     if (unsent_work()) continue;
-    if (!inflight_.empty() || mosquitto_want_write(mosq_)) {
+    if (!inflight_.empty() || link_->want_write()) {
       wait_socket(std::chrono::milliseconds(10));  // acknowledgements expected
       continue;
     }
@@ -443,21 +403,20 @@ void MqttSink::run() {
     work_ = false;
   }
   // Clean stop: the offline status replaces the retained online one (the Last Will is not sent then).
-  if (mosq_ && connected_) {
+  if (link_ && connected_) {
     const std::string off = "{\"state\":\"offline\",\"source\":" + nlohmann_quote(source_) + "}";
     int mid = 0;
-    mosquitto_publish(mosq_, &mid, (prefix_ + "/status").c_str(), static_cast<int>(off.size()), off.data(), 1, true);
-    track(mid, 0, 1);
+    if (link_->publish(&mid, prefix_ + "/status", off, 1, true) == MOSQ_ERR_SUCCESS) track(mid, 0, 1);
     const auto until = Clock::now() + std::chrono::milliseconds(500);
     while (waiting_for(mid) && Clock::now() < until) {
+      if (link_->write() != MOSQ_ERR_SUCCESS) break;
       wait_socket(std::chrono::milliseconds(10));
-      if (read_socket() != MOSQ_ERR_SUCCESS) break;
+      if (link_->read() != MOSQ_ERR_SUCCESS) break;
     }
     finish_round();
-    mosquitto_disconnect(mosq_);
+    link_->disconnect();
   }
-  if (mosq_) mosquitto_destroy(mosq_);
-  mosq_ = nullptr;
+  link_.reset();
   connected_flag_.store(false);
   spool_.persist();
 }

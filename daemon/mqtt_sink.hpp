@@ -1,4 +1,4 @@
-// MQTT output (libmosquitto, MQTT 3.1.1): events, a retained status and retained alarm transitions.
+// MQTT output (MQTT 3.1.1; daemon/mqtt_link.hpp): events, a retained status and retained alarm transitions.
 //
 //   <prefix>/events  one event per message: the event-log JSON object with "seq" first (QoS 1 default)
 //   <prefix>/status  retained: {"state":"online", alarm, baseline, EWMA, counters, last_event};
@@ -6,12 +6,12 @@
 //   <prefix>/alarm   retained: one message per alarm transition
 //
 // Nothing is lost: the processing thread only appends events to the on-disk Spool (no network); a
-// sender thread owns the libmosquitto client (its own loop on mosquitto_loop_read/write/misc) and
-// works in rounds, at most one per millisecond: it reads the PUBACKs that arrived (acknowledging their
-// events in the spool once per round), then publishes what the spool holds beyond what was sent, in
-// seq order, up to a window of messages in flight, in one TCP_CORK burst; with nothing to do it
-// sleeps until the processing thread spools again. A lost connection throws the
-// client away; the next one (after a backoff of 0.5 s doubling to 4 s) resends from the oldest
+// sender thread owns the connection (MqttLink: MQTT 3.1.1 over plain TCP written here, libmosquitto
+// for TLS) and works in rounds, at most one per kRound: it reads the PUBACKs that arrived
+// (acknowledging their events in the spool once per round), then publishes what the spool holds
+// beyond what was sent, in seq order, up to a window of messages in flight, in one burst (plain TCP:
+// one send(2)); with nothing to do it sleeps until the processing thread spools again. A lost
+// connection throws the client away; the next one (after a backoff of 0.5 s doubling to 4 s) resends from the oldest
 // unacknowledged event, so consumers see every seq at least once, in order, and de-duplicate by seq.
 // Alarm and status messages are not spooled: they are state, and the newest one is retained.
 #pragma once
@@ -31,9 +31,8 @@
 #include "app/config_yaml.hpp"
 #include "core/pipeline/impact_event.hpp"
 #include "daemon/metrics.hpp"
+#include "daemon/mqtt_link.hpp"
 #include "daemon/spool.hpp"
-
-struct mosquitto;
 
 namespace ridgewatch::daemon {
 
@@ -42,14 +41,14 @@ namespace ridgewatch::daemon {
 std::string default_topic_prefix(const std::string& source_name);
 std::string default_client_id(const std::string& source_name);
 
-class MqttSink {
+class MqttSink : private MqttLink::Events {
  public:
   /// Opens the spool and reads the password file; throws app::UsageError naming the key when either
   /// fails or the TLS files are not usable. `telemetry` supplies the status message (may be null; it
   /// must be fully set up before start()).
   MqttSink(const app::MqttConfig& config, const std::string& source_name, const Telemetry* telemetry,
            double status_interval_s);
-  ~MqttSink();
+  ~MqttSink() override;
   MqttSink(const MqttSink&) = delete;
   /// Starts the sender thread (which connects by itself and retries).
   void start();
@@ -75,33 +74,29 @@ class MqttSink {
   bool connect();
   void drop_connection(const std::string& why);
   void pump();
-  void set_cork(bool on);
   bool check(int rc);
   void wait_socket(std::chrono::milliseconds timeout);
   bool unsent_work();
   void signal_work();
-  void on_connect(int rc);
-  void on_publish(int mid);
+  void on_connect(int rc) override;
+  void on_publish(int mid) override;
   void retire_acknowledged();
   void finish_round();
   bool waiting_for(int mid) const;
   void track(int mid, std::uint64_t seq, int qos);
-  int read_socket();
   void log(int level, std::string text);
-  static void cb_connect(struct mosquitto*, void* self, int rc);
-  static void cb_publish(struct mosquitto*, void* self, int mid);
 
   app::MqttConfig cfg_;
-  std::string prefix_, client_id_, source_, password_;
+  std::string prefix_, events_topic_, client_id_, source_, password_;
   const Telemetry* telemetry_;
   std::chrono::duration<double> status_interval_;
   Spool spool_;
 
   // Sender thread only.
-  struct mosquitto* mosq_ = nullptr;
+  std::unique_ptr<MqttLink> link_;  // null between connections
   bool connected_ = false;
   struct Inflight {
-    int mid;            // libmosquitto message id
+    int mid;            // message id (MQTT packet identifier)
     std::uint64_t seq;  // event seq (0: status or alarm message)
     bool done;          // acknowledged (QoS 1) or handed over (QoS 0)
   };

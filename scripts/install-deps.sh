@@ -3,6 +3,7 @@
 set -euo pipefail
 packages=(
   build-essential cmake ninja-build pkg-config
+  ccache  # compiler cache: a second run of the test command recompiles only what changed
   libeigen3-dev libfftw3-dev libsndfile1-dev libspdlog-dev libyaml-cpp-dev
   libgtest-dev libgmock-dev libbenchmark-dev nlohmann-json3-dev
   libasound2-dev libgpiod-dev libsystemd-dev systemd

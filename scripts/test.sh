@@ -6,6 +6,9 @@
 set -euo pipefail
 here=$(cd "$(dirname "$0")/.." && pwd)
 "$here/scripts/install-deps.sh"
+# shellcheck source=scripts/ccache-args.sh
+. "$here/scripts/ccache-args.sh"
+ccache_setup "$here"
 jobs=$(nproc)
 
 echo "== release build + tests"
@@ -21,7 +24,7 @@ echo "== ThreadSanitizer build + threading tests (ring buffer, daemon, daemon wi
 # The daemon tests run the TSan-built ridgewatchd/ridgewatch binaries as child processes too, so data
 # races in the acquisition/processing threads of the real daemon are reported (halt_on_error: any
 # report fails the run). No suppressions.
-cmake -S "$here" -B "$here/build-tsan" -G Ninja -DRIDGEWATCH_TSAN=ON -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+cmake -S "$here" -B "$here/build-tsan" -G Ninja "${CCACHE_CMAKE_ARGS[@]}" -DRIDGEWATCH_TSAN=ON -DCMAKE_BUILD_TYPE=RelWithDebInfo \
   -DRIDGEWATCH_BUILD_BENCH=OFF >/dev/null
 cmake --build "$here/build-tsan" -j "$jobs" --target ridgewatch ridgewatchd test_ring_buffer test_daemon test_daemon_gpio \
   test_daemon_streams test_mqtt test_http
@@ -30,7 +33,7 @@ for t in test_ring_buffer test_daemon test_daemon_gpio test_daemon_streams test_
 done
 
 echo "== libFuzzer targets (clang, ASan+UBSan), 30 s each from the seed corpora"
-cmake -S "$here" -B "$here/build-fuzz" -G Ninja -DCMAKE_CXX_COMPILER=clang++-14 -DCMAKE_BUILD_TYPE=RelWithDebInfo \
+cmake -S "$here" -B "$here/build-fuzz" -G Ninja "${CCACHE_CMAKE_ARGS[@]}" -DCMAKE_CXX_COMPILER=clang++-14 -DCMAKE_BUILD_TYPE=RelWithDebInfo \
   -DRIDGEWATCH_FUZZ=ON -DRIDGEWATCH_BUILD_TESTS=OFF -DRIDGEWATCH_BUILD_BENCH=OFF >/dev/null
 cmake --build "$here/build-fuzz" -j "$jobs" --target fuzz_csv fuzz_wav fuzz_config fuzz_rig
 for t in csv wav config rig; do

@@ -20,7 +20,7 @@ namespace ig = ridgewatch::testsupport::indep;
 
 namespace {
 
-constexpr double kRate = 25600.0;
+constexpr double kRate = 25600.0;  // the rate of ig::short_test_record
 
 rm::RigParameters paper_rig(double load = 200.0) {
   rm::RigParameters rig;  // config/rigs/paper-rig.yaml
@@ -36,17 +36,6 @@ rd::DiagnoseResult run(const std::vector<double>& y, const rm::RigParameters& ri
   return rd::diagnose(fitter, {});
 }
 
-ig::Settings settings(ig::Hidden h, double size, std::uint64_t seed) {
-  ig::Settings s;
-  s.hidden = h;
-  s.size = size;
-  s.sample_rate_hz = kRate;
-  s.duration_s = 0.64;  // 16 impacts at 1500 rpm
-  s.noise_rel = 0.01;
-  s.seed = seed;
-  return s;
-}
-
 }  // namespace
 
 // The generator itself, against hand numbers: one impact per revolution (25 Hz), and the free
@@ -54,7 +43,7 @@ ig::Settings settings(ig::Hidden h, double size, std::uint64_t seed) {
 // Appendix B, computed by hand from J1, J2, r_b1, r_b2, c0). Zero crossings over 10 ms after the
 // first impact, noise-free: the period estimate is good to 1e-3 of a cycle per crossing pair.
 TEST(IndependentGenerator, ImpactRateAndRingingFrequencyMatchThePaperRig) {
-  ig::Settings s = settings(ig::Hidden::kNone, 0.0, 1);
+  ig::Settings s = ig::short_test_record(ig::Hidden::kNone, 0.0, 1);
   s.noise_rel = 0.0;
   const auto r = ig::generate(s);
   ASSERT_EQ(r.impact_times_s.size(), 16u);
@@ -72,7 +61,7 @@ TEST(IndependentGenerator, ImpactRateAndRingingFrequencyMatchThePaperRig) {
 // Issue 14: stiffness variation whose only evidence is the modulation of each free decay (no static
 // load lines) was missed ("none"). Now found by its own name.
 TEST(DiagnoseIndependent, MeshVariationWithoutLoadLinesIsFound) {
-  const auto r = ig::generate(settings(ig::Hidden::kMeshVariationNoLines, 1.5, 1));
+  const auto r = ig::generate(ig::short_test_record(ig::Hidden::kMeshVariationNoLines, 1.5, 1));
   const auto res = run(r.y, paper_rig());
   ASSERT_EQ(res.verdict, std::vector<std::string>{"mesh_stiffness_variation"}) << res.unexplained_where;
   EXPECT_GT(res.baseline_excess, 0.5);
@@ -90,7 +79,7 @@ TEST(DiagnoseIndependent, MeshVariationWithoutLoadLinesIsFound) {
 // A control from the other generator: nothing accepted and nothing unexplained. Before the impact
 // pulse length was fitted, the Hann pulse alone left a held-out excess of 0.04-0.12 here.
 TEST(DiagnoseIndependent, ControlAcceptsNothing) {
-  const auto r = ig::generate(settings(ig::Hidden::kNone, 0.0, 2));
+  const auto r = ig::generate(ig::short_test_record(ig::Hidden::kNone, 0.0, 2));
   const auto res = run(r.y, paper_rig());
   EXPECT_TRUE(res.verdict.empty());
   EXPECT_TRUE(res.ambiguous.empty());

@@ -13,6 +13,7 @@
 #include "cli_runner.hpp"
 #include "app/args.hpp"
 #include "app/config_yaml.hpp"
+#include "daemon/mqtt_link.hpp"
 #include "daemon/spool.hpp"
 #include "net_test_support.hpp"
 #include "process_runner.hpp"
@@ -405,6 +406,27 @@ TEST(MqttBroker, PasswordFromFileNeverLogged) {
   EXPECT_EQ(d2.wait(10s), 2);
   EXPECT_NE(ridgewatch::test::slurp(dir / "err2").find("output.mqtt.password_file"), std::string::npos)
       << ridgewatch::test::slurp(dir / "err2");
+
+  // A wrong password: the broker refuses the connection (logged with its reason, not the password)
+  // and every event stays in the spool for a later connection.
+  const std::string wrong = "Wr0ng-Pa55-word";
+  std::ofstream(dir / "wrong.pass") << wrong << "\n";
+  fs::remove_all(dir / "spool");
+  const std::string cfg3 = mqtt_config(dir, port, "    username: \"rig\"\n    password_file: \"" + (dir / "wrong.pass").string() + "\"\n");
+  ChildProcess d3({RIDGEWATCHD_PATH, "--config", cfg3, "--replay", kReplay, "--speed", "max", "--events",
+                   (dir / "ev3.jsonl").string()},
+                  {}, (dir / "out3").string(), (dir / "err3").string());
+  ASSERT_EQ(d3.wait(30s), 0) << ridgewatch::test::slurp(dir / "err3");
+  const std::string err3 = ridgewatch::test::slurp(dir / "err3");
+  EXPECT_NE(err3.find("broker refused the connection"), std::string::npos) << err3;
+  EXPECT_EQ(err3.find("MQTT: connected"), std::string::npos) << err3;
+  EXPECT_EQ(err3.find(wrong), std::string::npos);
+  std::size_t spooled = 0;
+  for (const auto& e : fs::directory_iterator(dir / "spool"))
+    if (e.path().filename().string().rfind("seg-", 0) == 0) spooled += read_jsonl(e.path()).size();
+  const std::size_t logged = read_jsonl(dir / "ev3.jsonl").size();
+  EXPECT_GT(logged, 0u);
+  EXPECT_EQ(spooled, logged);
 }
 
 // ---- configuration ------------------------------------------------------------------------------
@@ -442,4 +464,196 @@ TEST(MqttConfig, BadValuesNameTheKey) {
   EXPECT_EQ(c.output.mqtt.tls.ca_file, "/ca");
   EXPECT_EQ(c.http.listen, "[::1]:9420");
   EXPECT_EQ(ridgewatch::app::to_yaml(parse_config(ridgewatch::app::to_yaml(c), "again")), ridgewatch::app::to_yaml(c));
+}
+
+// ---- the plain-TCP MQTT 3.1.1 link against a scripted broker -----------------------------------
+
+namespace {
+
+// The test's side of one connection: reads exactly n bytes (or fewer when the peer closes).
+std::string read_exact(int fd, std::size_t n) {
+  std::string out;
+  char buf[4096];
+  while (out.size() < n) {
+    const ssize_t got = ::recv(fd, buf, std::min(sizeof buf, n - out.size()), 0);
+    if (got <= 0) break;
+    out.append(buf, static_cast<std::size_t>(got));
+  }
+  return out;
+}
+
+// One control packet as the specification lays it out (2.2): type byte, remaining length (base 128,
+// low digits first), body.
+struct Packet {
+  unsigned type = 0;
+  std::string body;
+};
+Packet read_packet(int fd) {
+  Packet p;
+  const std::string t = read_exact(fd, 1);
+  if (t.empty()) return p;
+  p.type = static_cast<unsigned char>(t[0]);
+  std::size_t len = 0, mult = 1;
+  for (;;) {
+    const std::string b = read_exact(fd, 1);
+    if (b.empty()) return p;
+    len += (static_cast<unsigned char>(b[0]) & 127u) * mult;
+    mult *= 128;
+    if ((static_cast<unsigned char>(b[0]) & 128u) == 0) break;
+  }
+  p.body = read_exact(fd, len);
+  return p;
+}
+
+// A two-byte big-endian length followed by that many bytes (1.5.3), taken from the front of `s`.
+std::string take_field(std::string& s) {
+  if (s.size() < 2) return "<short>";
+  const std::size_t n = static_cast<unsigned char>(s[0]) * 256u + static_cast<unsigned char>(s[1]);
+  std::string f = s.substr(2, n);
+  s.erase(0, 2 + n);
+  return f;
+}
+
+struct Recorder : ridgewatch::daemon::MqttLink::Events {
+  std::vector<int> connacks, acks;
+  void on_connect(int rc) override { connacks.push_back(rc); }
+  void on_publish(int mid) override { acks.push_back(mid); }
+};
+
+void send_bytes(int fd, const std::string& s) { ASSERT_EQ(::send(fd, s.data(), s.size(), MSG_NOSIGNAL), static_cast<ssize_t>(s.size())); }
+
+}  // namespace
+
+// The link writes CONNECT and PUBLISH as MQTT 3.1.1 specifies them (decoded here independently),
+// reports a CONNACK and PUBACKs that arrive cut at arbitrary byte boundaries, pings when the
+// connection is idle for the keepalive, gives up on a broker that does not answer the ping, and
+// reports a closed connection.
+TEST(MqttLink, PlainTcpSpeaksMqtt311ToAScriptedBroker) {
+  using ridgewatch::daemon::MqttLink;
+  const int lfd = ::socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  ASSERT_EQ(::bind(lfd, reinterpret_cast<sockaddr*>(&a), sizeof a), 0);
+  ASSERT_EQ(::listen(lfd, 1), 0);
+  socklen_t alen = sizeof a;
+  ::getsockname(lfd, reinterpret_cast<sockaddr*>(&a), &alen);
+  const int port = ntohs(a.sin_port);
+
+  ridgewatch::app::MqttConfig cfg;  // no TLS: the plain-TCP link
+  MqttLink::Options o;
+  o.client_id = "rig-c";
+  o.username = "user";
+  o.password = "pw!";
+  o.will_topic = "p/status";
+  o.will_payload = "{\"state\":\"offline\"}";
+  o.keepalive_s = 1;
+  Recorder rec;
+  std::string error;
+  auto link = ridgewatch::daemon::make_mqtt_link(cfg, o, rec, error);
+  ASSERT_TRUE(link) << error;
+  ASSERT_EQ(link->connect("127.0.0.1", port), MOSQ_ERR_SUCCESS);
+  const int fd = ::accept(lfd, nullptr, nullptr);
+  ASSERT_GE(fd, 0);
+
+  // CONNECT (3.1): "MQTT", level 4, flags user + password + will retain + will QoS 1 + will + clean
+  // session = 0xEE, keepalive 1 s; payload client id, will topic, will message, user, password.
+  Packet c = read_packet(fd);
+  EXPECT_EQ(c.type, 0x10u);
+  EXPECT_EQ(take_field(c.body), "MQTT");
+  ASSERT_GE(c.body.size(), 4u);
+  EXPECT_EQ(static_cast<unsigned char>(c.body[0]), 4u);
+  EXPECT_EQ(static_cast<unsigned char>(c.body[1]), 0xEEu);
+  EXPECT_EQ(static_cast<unsigned char>(c.body[2]) * 256 + static_cast<unsigned char>(c.body[3]), 1);
+  c.body.erase(0, 4);
+  for (const std::string want : {"rig-c", "p/status", "{\"state\":\"offline\"}", "user", "pw!"}) EXPECT_EQ(take_field(c.body), want);
+  EXPECT_TRUE(c.body.empty());
+
+  // CONNACK cut after its third byte: reported only once whole.
+  send_bytes(fd, std::string("\x20\x02\x00", 3));
+  std::this_thread::sleep_for(50ms);
+  EXPECT_EQ(link->read(), MOSQ_ERR_SUCCESS);
+  EXPECT_TRUE(rec.connacks.empty());
+  send_bytes(fd, std::string("\x00", 1));
+  std::this_thread::sleep_for(50ms);
+  EXPECT_EQ(link->read(), MOSQ_ERR_SUCCESS);
+  EXPECT_EQ(rec.connacks, std::vector<int>{0});
+
+  // Three publishes queued, then written together: QoS 1, QoS 1 retained, QoS 0; a payload of 300
+  // bytes needs a two-byte remaining length.
+  const std::string big(300, 'z');
+  int m1 = 0, m2 = 0, m3 = 0;
+  ASSERT_EQ(link->publish(&m1, "p/events", "{\"seq\":1}", 1, false), MOSQ_ERR_SUCCESS);
+  ASSERT_EQ(link->publish(&m2, "p/alarm", big, 1, true), MOSQ_ERR_SUCCESS);
+  ASSERT_EQ(link->publish(&m3, "p/events", "q0", 0, false), MOSQ_ERR_SUCCESS);
+  EXPECT_NE(m1, 0);
+  EXPECT_NE(m2, 0);
+  EXPECT_NE(m1, m2);
+  EXPECT_TRUE(link->want_write());
+  EXPECT_EQ(link->write(), MOSQ_ERR_SUCCESS);
+  EXPECT_FALSE(link->want_write());
+  auto check_publish = [&](unsigned type, const std::string& topic, int id, const std::string& payload) {
+    Packet p = read_packet(fd);
+    EXPECT_EQ(p.type, type);
+    EXPECT_EQ(take_field(p.body), topic);
+    if (id != 0) {
+      ASSERT_GE(p.body.size(), 2u);
+      EXPECT_EQ(static_cast<unsigned char>(p.body[0]) * 256 + static_cast<unsigned char>(p.body[1]), id);
+      p.body.erase(0, 2);
+    }
+    EXPECT_EQ(p.body, payload);
+  };
+  check_publish(0x32, "p/events", m1, "{\"seq\":1}");  // PUBLISH, QoS 1
+  check_publish(0x33, "p/alarm", m2, big);             // QoS 1, retain
+  check_publish(0x30, "p/events", 0, "q0");            // QoS 0: no packet identifier
+
+  // PUBACKs in another order, the second cut in the middle of its identifier.
+  std::string acks;
+  for (const int id : {m2, m1}) acks += std::string{'\x40', '\x02', static_cast<char>(id >> 8), static_cast<char>(id & 0xFF)};
+  send_bytes(fd, acks.substr(0, 6));
+  std::this_thread::sleep_for(50ms);
+  EXPECT_EQ(link->read(), MOSQ_ERR_SUCCESS);
+  EXPECT_EQ(rec.acks, std::vector<int>{m2});
+  send_bytes(fd, acks.substr(6));
+  std::this_thread::sleep_for(50ms);
+  EXPECT_EQ(link->read(), MOSQ_ERR_SUCCESS);
+  EXPECT_EQ(rec.acks, (std::vector<int>{m2, m1}));
+
+  // Idle for the keepalive (1 s): a PINGREQ; answered, the link stays up; unanswered for another
+  // keepalive, the link reports the broker gone. misc() is polled every 20 ms as the sender does.
+  auto poll_misc_until = [&](const std::function<bool(int)>& done, std::chrono::milliseconds limit) {
+    const auto end = std::chrono::steady_clock::now() + limit;
+    int rc = MOSQ_ERR_SUCCESS;
+    while (std::chrono::steady_clock::now() < end) {
+      rc = link->misc();
+      if (done(rc)) break;
+      std::this_thread::sleep_for(20ms);
+    }
+    return rc;
+  };
+  const auto t0 = std::chrono::steady_clock::now();
+  Packet ping;
+  std::atomic<bool> pinged{false};
+  std::thread pinger([&] {
+    ping = read_packet(fd);
+    pinged = true;
+  });
+  poll_misc_until([&](int) { return pinged.load(); }, 3s);
+  pinger.join();
+  EXPECT_EQ(ping.type, 0xC0u);
+  EXPECT_TRUE(ping.body.empty());
+  EXPECT_GE(std::chrono::steady_clock::now() - t0, 900ms);  // not before the keepalive (1 s, timer slack)
+  send_bytes(fd, std::string("\xD0\x00", 2));                // PINGRESP
+  std::this_thread::sleep_for(50ms);
+  EXPECT_EQ(link->read(), MOSQ_ERR_SUCCESS);
+  EXPECT_EQ(link->misc(), MOSQ_ERR_SUCCESS);
+  // The next PINGREQ goes unanswered.
+  const int rc = poll_misc_until([](int r) { return r != MOSQ_ERR_SUCCESS; }, 4s);
+  EXPECT_EQ(rc, MOSQ_ERR_KEEPALIVE);
+
+  // The broker closes the connection: reported as lost.
+  ::close(fd);
+  std::this_thread::sleep_for(50ms);
+  EXPECT_EQ(link->read(), MOSQ_ERR_CONN_LOST);
+  ::close(lfd);
 }

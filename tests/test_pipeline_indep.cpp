@@ -239,7 +239,7 @@ TEST(PipelineIndep, EstimateDoesNotDependOnTheMaximumOnceItCoversTheDecay) {
 //    854 Hz mode's band, the 3rd 975 -> 1268 Hz out of it), mains hum at 50 Hz with harmonics up to
 //    the 20th (the 17th, 850 Hz, sits on the mode), white noise and sensor spikes. The issue's
 //    acceptance: at least 97 % of the impacts found, no false ones, every ok event within 10 % of the
-//    true zeta, at least 60 % ok. Met: 861 of 861 found, 0 false, every ok within 8.2 %, 61.4 % ok.
+//    true zeta, at least 60 % ok. Met: 861 of 861 found, 0 false, every ok within 8.2 %, 60.3 % ok.
 //    While the 2nd mesh harmonic sweeps towards and through the fit band, the analyzer's ML fit adds a
 //    nearly undamped component at the line (impact_analyzer.hpp, step 4) when the single-mode interval
 //    is too wide; while the line sits within one DFT bin of the mode (the last ~1.5 s) it is not
@@ -306,8 +306,8 @@ TEST(PipelineIndep, NuisancesFoundAndOkEventsRight) {
             << ok << " of " << events << " events ok, largest |zeta error| of an ok event " << 100.0 * max_err << " %\n";
   EXPECT_GE(static_cast<double>(found), 0.97 * static_cast<double>(impacts));
   EXPECT_EQ(false_events, 0u);
-  // The issue asks for 0.60. Measured 529 of 861 = 0.614 over the 3 seeds (seed 1: 167 of 287 = 0.58,
-  // seed 2: 0.62, seed 3: 0.64; 0.42 before the line component of the ML fit); the sanitizer builds run
+  // The issue asks for 0.60. Measured 519 of 861 = 0.603 over the 3 seeds (seed 1: 165 of 287 = 0.575;
+  // 0.42 before the line component of the ML fit, which is now used only when significant); the sanitizer builds run
   // seed 1 alone, held at 0.55. Largest |zeta error| of an ok event 8.2 % (limit 10 %).
 #ifdef RIDGEWATCH_SANITIZED
   EXPECT_GE(static_cast<double>(ok), 0.55 * static_cast<double>(events));
@@ -397,6 +397,78 @@ TEST(PipelineIndep, ClipLevelFromTheFormat) {
   const auto i24 = statuses(indep::SampleFormat::pcm24, 5.0);
   ASSERT_EQ(i24.size(), rec.onset_s.size());
   for (std::size_t i = 0; i + 1 < i24.size(); ++i) EXPECT_EQ(i24[i], "ok") << i;
+}
+
+}  // namespace
+}  // namespace ridgewatch::test
+
+namespace ridgewatch::test {
+namespace {
+
+// ---------------------------------------------------------------------------------------------------
+// 5. ok is a promise on a noisy record whose decays fill the interval: 854 Hz, zeta 0.01, 25 impacts
+//    per second with a +-5 % speed wobble (13 % of each decay's amplitude left at the next impact),
+//    mesh lines (22 teeth, 25 % / 15 % of the impact), hum 50/100 Hz (10 % / 5 %), white noise at
+//    10 dB (sd 0.32 of the impact amplitude), 51.2 kHz, the configuration `ridgewatch survey` proposes
+//    for it. The one-mode ML intervals are wider than the precision rule; a line component fitted to
+//    noise (no line lies in the fit band) made 4 events ok, with 4-6 residual degrees of freedom and
+//    1.96 instead of Student's t, and 2 of their 95 % intervals missed the true zeta
+//    ([0.00801, 0.00996] and [0.01001, 0.01247]). The line component is now used only when it lowers
+//    the residual significantly (F test at 1 %). Asserted: every impact found, none
+//    false, and no ok interval misses the truth (with 95 % intervals a miss among a few ok events is
+//    possible in principle; this record's estimates were the fitted noise's, not the mode's).
+indep::RigRecord ten_db_overlap_record() {
+  indep::RigSpec s;
+  const double a = 0.25;
+  s.fs_hz = 51200.0;
+  s.duration_s = 6.0;
+  s.rev_hz = 25.0;
+  s.wobble_rel = 0.05;
+  s.wobble_period_s = 1.0;
+  s.teeth = 22;
+  s.mesh_amp = {0.25 * a, 0.15 * a};
+  s.hum_amp = {0.10 * a, 0.05 * a};
+  s.noise_sd = a * std::pow(10.0, -10.0 / 20.0);
+  s.response.f_hz = 854.0;
+  s.response.zeta = 0.01;
+  s.response.amplitude = a;
+  s.amp_jitter_rel = 0.1;
+  s.first_impact_s = 0.5 / 25.0 + 0.01;
+  s.seed = 139;
+  return indep::make_rig_record(s);
+}
+
+TEST(PipelineIndep, NoOkIntervalMissesTheTruthOnANoisyOverlappingRecord) {
+  const indep::RigRecord rec = ten_db_overlap_record();
+  PipelineConfig cfg;
+  cfg.sample_rate_hz = rec.fs_hz;
+  // The survey's proposal for this record (`ridgewatch survey --write-config`), written out here so
+  // that the test does not depend on the survey.
+  cfg.detector.band_lo_hz = 725.7;
+  cfg.detector.band_hi_hz = 981.8;
+  cfg.detector.trigger_ratio = 3.0;
+  cfg.detector.holdoff_s = 0.0188205;
+  cfg.analyzer.f_expected_hz = 853.726;
+  cfg.analyzer.window_s = 0.031877;
+  cfg.analyzer.clip_level = NAN;
+  const PipeRun r = run_pipeline(cfg, rec.x);
+  expect_intervals_sane(r.events);
+  std::size_t found = 0, ok = 0, misses = 0;
+  for (const auto& e : r.events) {
+    const long k = match(rec.onset_s, e.t_s, 0.002);
+    ASSERT_GE(k, 0) << "false impact at " << e.t_s;
+    ++found;
+    if (e.status != ImpactStatus::ok) continue;
+    ++ok;
+    const double zt = rec.zeta[static_cast<std::size_t>(k)];
+    const bool covers = e.zeta_ci95_lo <= zt && zt <= e.zeta_ci95_hi;
+    misses += !covers;
+    EXPECT_TRUE(covers) << "ok interval [" << e.zeta_ci95_lo << ", " << e.zeta_ci95_hi << "] misses zeta " << zt
+                        << " at t = " << e.t_s;
+  }
+  std::cout << "10 dB overlapping record: " << found << " of " << rec.onset_s.size() << " found, " << ok << " ok, "
+            << misses << " ok intervals miss the truth\n";
+  EXPECT_EQ(found, rec.onset_s.size());
 }
 
 }  // namespace

@@ -147,29 +147,10 @@ TEST(SurveyControls, NoImpactsNoProposal) {
 TEST(SurveyRealData, HammerHitRepeatedFiveTimes) {
   const std::string hit = std::string(RIDGEWATCH_SHARED_DIR) + "/real-data/hammer-hit/hit-1.wav";
   if (!std::filesystem::exists(hit)) GTEST_SKIP() << hit << " not present";
-  ridgewatch::drivers::ReplayOptions ro;
-  ro.channel = 0;  // the response (channel 1 is the hammer force)
-  auto src = ridgewatch::drivers::open_replay(hit, ro);
-  const double fs = src->info().sample_rate_hz;
-  const auto x = ridgewatch::drivers::read_all(*src);
-  // 0.5 s of silence before the first copy as before the others (a recording does not start 2 ms
-  // before its first hit: a narrow detector band, e.g. around 2640 Hz, needs its filter history).
-  auto rep = indep::repeat_with_gaps(x, fs, 5, 0.5);
-  const auto lead = static_cast<std::size_t>(0.5 * fs);
-  rep.insert(rep.begin(), lead, 0.0);
+  // The record: survey_cases::write_hammer_record (5 copies, 0.5 s of zeros before each).
   const std::string dir = temp_dir("hammer");
-  indep::write_wav_mono(dir + "/hammer5.wav", rep, fs, indep::SampleFormat::float32);
-  // Truth: one impact per copy, at the hit's position in each 1.5 s copy; the onset is not known
-  // exactly, so events are matched within 0.2 s of the copy's peak.
-  std::size_t peak = 0;
-  for (std::size_t i = 0; i < x.size(); ++i)
-    if (std::fabs(x[i]) > std::fabs(x[peak])) peak = i;
-  std::vector<double> onsets, zetas;
-  for (int k = 0; k < 5; ++k) {
-    onsets.push_back((static_cast<double>(lead + peak) + k * (static_cast<double>(x.size()) + 0.5 * fs)) / fs);
-    zetas.push_back(1e-3);  // order of magnitude only (README of the data); not scored
-  }
-  const auto o = survey_cases::survey_then_analyze(dir + "/hammer5.wav", dir + "/hammer5.yaml", onsets, zetas, 0.2);
+  const auto h = survey_cases::write_hammer_record(hit, dir);
+  const auto o = survey_cases::survey_then_analyze(h.wav, dir + "/hammer5.yaml", h.onsets, h.zetas, 0.2);
   ASSERT_TRUE(o.proposal) << o.survey_text;
   const double f = o.f_expected_hz;
   // Within 3 % of one of the structure's known modes (the data's README gives them rounded: 900,
@@ -179,6 +160,17 @@ TEST(SurveyRealData, HammerHitRepeatedFiveTimes) {
   EXPECT_TRUE(near_mode) << "f_expected_hz " << f;
   EXPECT_EQ(o.found, 5u) << o.analyze_err;
   EXPECT_EQ(o.false_events, 0u);
+  // Every event ok: the proposed mode must be one the analyzer reads apart from the neighbours the
+  // survey found (eta0 and ridge band from them). The 5977 Hz mode, 1.7 % from one at 6077 Hz, gave
+  // 5 ridge_lost events. The truth is not known beyond the data's README (damping ratios of order
+  // 1e-3 and below): each ok zeta within 1e-4 .. 5e-3, and its frequency within 0.5 % of the proposal
+  // (the ridge stayed on the proposed mode; its band is narrower than the distance to the neighbours).
+  EXPECT_EQ(o.ok, 5u) << o.survey_text;
+  for (std::size_t i = 0; i < o.ok_zeta.size(); ++i) {
+    EXPECT_GT(o.ok_zeta[i], 1e-4);
+    EXPECT_LT(o.ok_zeta[i], 5e-3);
+    EXPECT_NEAR(o.ok_f_hz[i] / f, 1.0, 0.005);
+  }
 }
 
 TEST(SurveyCli, WriteConfigMergesIntoACopyAndRefusesTheBaseItself) {

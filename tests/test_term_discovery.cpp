@@ -32,23 +32,12 @@ namespace ig = ridgewatch::testsupport::indep;
 
 namespace {
 
-constexpr double kRate = 25600.0;
+constexpr double kRate = 25600.0;  // the rate of ig::short_test_record
 
 rm::RigParameters paper_rig() {
   rm::RigParameters rig;  // config/rigs/paper-rig.yaml
   rig.crack_angle_rad = 1.0;
   return rig;
-}
-
-ig::Settings settings(ig::Hidden h, double size, std::uint64_t seed) {
-  ig::Settings s;
-  s.hidden = h;
-  s.size = size;
-  s.sample_rate_hz = kRate;
-  s.duration_s = 0.64;  // 16 impacts at 1500 rpm
-  s.noise_rel = 0.01;
-  s.seed = seed;
-  return s;
 }
 
 /// Term discovery on the linear model's fit of a record (what diagnose does when nothing passes).
@@ -78,7 +67,7 @@ const rd::DiscoveredTerm* find_term(const std::vector<rd::DiscoveredTerm>& terms
 // A control of the other generator: no term of the library improves the held-out impacts beyond
 // the noise, so nothing is proposed.
 TEST(TermDiscovery, ControlGivesNoProposal) {
-  const auto rec = ig::generate(settings(ig::Hidden::kNone, 0.0, 3));
+  const auto rec = ig::generate(ig::short_test_record(ig::Hidden::kNone, 0.0, 3));
   const auto r = discover_on_linear_fit(rec.y);
   EXPECT_FALSE(r.proposed) << r.force;
   // The linearised correction of c0 and ζ alone leaves the control at the noise (0.1: the target).
@@ -90,7 +79,7 @@ TEST(TermDiscovery, ControlGivesNoProposal) {
 // -0.004 c0 = -3.2e6 N/(m s); the first-order estimate is allowed a factor 2 (it is a start for
 // compare's nonlinear refit, and the fitted c0 absorbs part of a drift over a short record).
 TEST(TermDiscovery, StiffnessDriftGivesTimeTimesDeflection) {
-  auto s = settings(ig::Hidden::kFrequencyDrift, 0.004, 1);
+  auto s = ig::short_test_record(ig::Hidden::kFrequencyDrift, 0.004, 1);
   s.duration_s = 2.0;  // README's drift case: 2 s, 16 impacts spread over it
   const auto rec = ig::generate(s);
   const auto r = discover_on_linear_fit(rec.y);
@@ -106,7 +95,7 @@ TEST(TermDiscovery, StiffnessDriftGivesTimeTimesDeflection) {
 // Hidden cubic damping (7e8 N s³/m³: at the impact's peak velocity 3.5x the linear damping force), end to end through the CLI as a user would: diagnose proposes
 // a v³ term; the YAML it prints, pasted into the rig file, makes compare's held-out excess < 0.1.
 TEST(TermDiscovery, CubicDampingProposalPastedMakesTheErrorFall) {
-  const auto rec = ig::generate(settings(ig::Hidden::kCubicDamping, 7e8, 2));
+  const auto rec = ig::generate(ig::short_test_record(ig::Hidden::kCubicDamping, 7e8, 2));
   const auto dir = std::filesystem::temp_directory_path() / ("ridgewatch-term-discovery-" + std::to_string(::getpid()));
   std::filesystem::create_directories(dir);
   const std::string wav = (dir / "cubic.wav").string();

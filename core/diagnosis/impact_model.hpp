@@ -1,11 +1,12 @@
 // Per-impact simulation of the gear-pair model for model-vs-measurement fitting (issue 5).
 //
 // The full simulator (core/model/simulator.hpp) integrates a whole record; fitting needs the response
-// of one impact window many times per optimiser step. This is the same physics in windowed form:
-// Eq. A1 on the dynamic deflection x = q - q_s (m_red ẍ = W + F_imp - g [c_z δ + d_z δ̇] - resisting
-// forces, δ = q_s + x + e, c_z = c0 + Δc(θ_z) from Eq. B1) with the catalogue effects as plug-ins
-// (core/model/effect.hpp), fixed-step RK4 and event location on switching effects (Coulomb friction,
-// contact loss) with the stick test, exactly as the simulator does.
+// of one impact window many times per optimiser step. Both run the same integrator of Eq. A1/A2
+// (core/model/mesh_dynamics.hpp: RK4, steps split at the pulse edges, event location on switching
+// effects with the stick test, the catalogue's and the rig file's effects as plug-ins); this file adds
+// the window conventions below. Numerical settings of the fit: the RK4 step (ω h <= 0.25 at the highest
+// modelled frequency), mesh terms from their phasors on the half-step grid, and short steps while dry
+// friction holds the mesh inside the pulse.
 //
 // Window conventions (what makes the fit identifiable; README "Model vs measurement"):
 //  * the impact is a half-sine force pulse of the rig's duration starting at `onset_s` with peak
@@ -25,6 +26,7 @@
 #include <vector>
 
 #include "core/model/effect.hpp"
+#include "core/model/mesh_dynamics.hpp"
 #include "core/model/rig_parameters.hpp"
 
 namespace ridgewatch::diagnosis {
@@ -120,8 +122,8 @@ class WindowSimulator {
 
   /// Closed-form free decay of a transient over dt seconds (both modes linear, Eq. A2 with constant ζ).
   ModelState propagate(const ModelState& s, double dt_s, double t_abs_s) const;
-  bool has_dry_friction() const { return stick_limit_n_ > 0.0; }
-  double damping_ratio_at(double t_abs_s) const;
+  bool has_dry_friction() const { return model_->stick_limit_n() > 0.0; }
+  double damping_ratio_at(double t_abs_s) const { return model_->damping_ratio(t_abs_s); }
 
  private:
   static constexpr int kSteadyOrders = 8;
@@ -133,27 +135,17 @@ class WindowSimulator {
   /// simulate without the guard against a non-finite user-defined force: one Run over the window.
   void simulate_unguarded(std::uint64_t first, std::size_t n, const Impact& impact, const ModelState& carry,
                           double* out, End& end, std::vector<TraceSample>* trace) const;
-  /// One window's integration (RK4 with event location and the stick test) in named steps (the .cpp).
+  /// One window's integration (the shared integrator, core/model/mesh_dynamics.hpp) from the steady
+  /// state plus the carried transient, with the output and trace (the .cpp).
   struct Run;
-  /// Δc(θ), e(θ), de/dθ summed over the effects (phasors when exact, else the effects' hooks).
-  /// `dcs`: the static part of Δc (multiplies q_s; equal to dc unless an effect relieves it).
-  void mesh_terms(double th, double& dc, double& e, double& de, double& dcs) const;
-  /// The phasor sums of mesh_terms for cos θ = c1, sin θ = s1 (phasors exact).
-  void phasor_sums(double c1, double s1, double& dc, double& e, double& de, double& dcs) const;
 
   model::RigParameters rig_;
   PhysicsValues physics_;
   double fs_ = 0.0;
   int substeps_ = 1;
-  double m_red_ = 0.0, crit_ = 0.0, static_force_ = 0.0, q_s_ = 0.0, sens_ = 0.0, pulse_s_ = 0.0;
+  double m_red_ = 0.0, crit_ = 0.0, q_s_ = 0.0, sens_ = 0.0;
   std::vector<std::unique_ptr<model::Effect>> effects_;
-  std::vector<std::size_t> switching_;
-  double stick_limit_n_ = 0.0;
-  bool has_aux_ = false;
-  double aux_w2_ = 0.0, aux_2zw_ = 0.0, aux_part_ = 0.0, aux_w_ = 0.0, aux_zeta_ = 0.0;
-  bool mesh_forcing_ = false;
-  bool phasors_exact_ = false;
-  std::complex<double> e_ph_[4], de_ph_[4], dc_ph_[4], dcs_ph_[4];  // phasors of e(θ), de/dθ, Δc(θ), static Δc
+  std::unique_ptr<model::MeshModel> model_;
 };
 
 }  // namespace ridgewatch::diagnosis

@@ -2,20 +2,11 @@
 // cracked-tooth impact once per pinion revolution, plus the effects of the catalogue
 // (core/model/effect_registry.hpp). Pure computation: no I/O, no clock, no threads.
 //
-// State: x = q - q_s (dynamic mesh deflection about the static one q_s = W/c0, m), q̇ (m/s), the
-// auxiliary mode p, ṗ (second_mode) and the pinion angle θ1 (rad). Equation of motion (Eq. A1 with
-// F = W + impacts, W = M1/r_b1 the static tooth force):
-//
-//   m_red ẍ = W + F_imp(t) - g(regime) [c_z(θ_z) δ + d_z(t) δ̇] - sum of resisting forces,
-//   δ = q_s + x + e(θ_z),  c_z = c0 + Δc(θ_z) (Eq. B1 on the mesh angle θ_z = z1 θ1),
-//   d_z(t) = 2 ζ(t) sqrt(c0 m_red)  (Eq. A2's ζ, with d_z constant over a mesh cycle as in Eq. A1).
-//
-// Integration: classical fixed-step RK4 at `substeps_per_sample` × the output rate (at least
-// `min_internal_rate_hz`). Steps are split at the start and end of every impact pulse, and
-// non-smooth terms (Coulomb friction sign, contact loss) are handled by event location: the regime of
-// each switching effect is frozen over a step, a sign change of its switching function is located by
-// bisection on the step length, and the step is restarted there with the new regime (with a stick test
-// for dry friction).
+// The equation of motion and its integration (RK4, steps split at impact pulse edges, event location
+// on switching effects with the stick test) are core/model/mesh_dynamics.hpp, shared with the model
+// fit. Here: the pinion angle pre-pass (revolution marks, impact onsets with amplitude jitter), fixed
+// steps at `substeps_per_sample` x the output rate (at least `min_internal_rate_hz`), the sensor
+// effects, the tacho channel and the truth series.
 #pragma once
 
 #include <cstdint>

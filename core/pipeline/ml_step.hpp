@@ -1,6 +1,7 @@
 // Step 4 of the impact analysis (core/pipeline/impact_analyzer.hpp): the maximum-likelihood fit of one
 // damped mode (dsp::SpectralModeFitter) to the decay segment, and, when a steady line near the mode
-// widens its interval, the second fit with a nearly undamped line component.
+// widens its interval, the second fit with a nearly undamped line component (used only when the line
+// is significant: F test against the one-mode fit on the same bins).
 //
 // Segment lengths are k/8 of the full window's ML segment, k = 1..8 (at least 64 samples), so that
 // the fitters and their buffers are made once (prepare()); a fit uses the longest one the segment
@@ -57,6 +58,7 @@ class MlStep {
   dsp::MlFitResult one_;                         // reused: modes reserved for one guess
   dsp::MlFitResult with_line_;                   // the fit with a line component: two guesses
   dsp::MlFitResult try_;                         // ... one of its candidates
+  dsp::MlFitResult base_;                        // the one-mode fit on a candidate's bins (line test)
   std::vector<std::complex<double>> line_bins_;  // the segment's DFT bins around the fit band
 
   std::size_t bins_for(std::size_t len) const;

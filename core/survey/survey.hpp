@@ -79,6 +79,9 @@ struct ModeCluster {
   double zeta_q1 = NAN, zeta_q3 = NAN;
   double amplitude = NAN;      ///< median amplitude at the segment start, signal units
   std::size_t segments = 0;    ///< segments with an ok mode in the cluster
+  /// Morlet eta0 that reads this mode apart from the other modes listed (step 4'); may exceed the
+  /// analyzer's maximum 50 (then the analyzer cannot separate them).
+  double eta0_needed = NAN;
 };
 
 struct Proposal {

@@ -29,6 +29,20 @@ T max_keep(T m, T v) {
   return v > m ? v : m;
 }
 
+// The outputs m .. m1-1 one at a time (the tail after the four-wide steps), folding max |x| of their
+// samples into peak; Peak is the input's own type, so float input keeps a float maximum.
+template <bool kFloat, typename In, typename Peak>
+Peak scalar_tail(const In* x, double* y, float* yf, std::size_t m, std::size_t m1, Peak peak) {
+  for (; m < m1; ++m) {
+    const double v = taps_121(x, 2 * m);
+    y[m] = v;
+    if constexpr (kFloat) yf[m] = static_cast<float>(v);
+    peak = max_keep(peak, std::abs(x[2 * m]));
+    peak = max_keep(peak, std::abs(x[2 * m + 1]));
+  }
+  return peak;
+}
+
 // Double input: four outputs per step written out in scalars, the maximum in eight independent lanes
 // (one lane would be a serial chain of compare-selects, two per output).
 template <bool kFloat>
@@ -49,14 +63,7 @@ template <bool kFloat>
   }
   double peak = 0.0;
   for (double p : pk) peak = max_keep(peak, p);
-  for (; m < m1; ++m) {
-    const double v = taps_121(x, 2 * m);
-    y[m] = v;
-    if constexpr (kFloat) yf[m] = static_cast<float>(v);
-    peak = max_keep(peak, std::abs(x[2 * m]));
-    peak = max_keep(peak, std::abs(x[2 * m + 1]));
-  }
-  return peak;
+  return scalar_tail<kFloat>(x, y, yf, m, m1, peak);
 }
 
 // Float input: four outputs per step in vector lanes. x[2m .. 2m+7] in two loads, widened to double
@@ -96,15 +103,8 @@ template <bool kFloat>
     }
   }
   pk0 = pk1 > pk0 ? pk1 : pk0;
-  float peak = max_keep(max_keep(pk0[0], pk0[1]), max_keep(pk0[2], pk0[3]));
-  for (; m < m1; ++m) {
-    const double v = taps_121(x, 2 * m);
-    y[m] = v;
-    if constexpr (kFloat) yf[m] = static_cast<float>(v);
-    peak = max_keep(peak, std::abs(x[2 * m]));
-    peak = max_keep(peak, std::abs(x[2 * m + 1]));
-  }
-  return static_cast<double>(peak);
+  const float peak = max_keep(max_keep(pk0[0], pk0[1]), max_keep(pk0[2], pk0[3]));
+  return static_cast<double>(scalar_tail<kFloat>(x, y, yf, m, m1, peak));
 }
 
 template <typename In>
