@@ -86,8 +86,7 @@ struct Daemon::Impl {
   std::atomic<std::size_t> producer_resume_items{0};  // free space the waiting producer wants
 
   GpioLines gpio;
-  std::vector<drivers::TachoEdge> edges;
-  std::int64_t last_pulse_ns = 0;
+  TachoMeter tacho_meter;
   std::uint64_t relay_errors_seen = 0;
 
   SystemdNotifier notifier;
@@ -294,16 +293,7 @@ struct Daemon::Impl {
   }
 
   void poll_tacho() {
-    if (!gpio.tacho) return;
-    edges.clear();
-    gpio.tacho->wait_edges(std::chrono::nanoseconds(0), edges);
-    for (const auto& edge : edges) {
-      if (!edge.rising) continue;
-      ++stats.tacho_pulses;
-      if (last_pulse_ns > 0 && edge.timestamp_ns > last_pulse_ns)
-        stats.shaft_hz = 1e9 / static_cast<double>(edge.timestamp_ns - last_pulse_ns);
-      last_pulse_ns = edge.timestamp_ns;
-    }
+    if (gpio.tacho) tacho_meter.poll(*gpio.tacho, stats);
   }
 
   // The samples of an impact's window (pretrigger + decay) from the ring's history; false when they
@@ -614,6 +604,18 @@ int Daemon::run() {
     return app::kExitBadInput;
   }
   return app::kExitOk;
+}
+
+void TachoMeter::poll(drivers::TachoInput& tacho, DaemonStats& stats) {
+  edges_.clear();
+  tacho.wait_edges(std::chrono::nanoseconds(0), edges_);
+  for (const auto& edge : edges_) {
+    if (!edge.rising) continue;
+    ++stats.tacho_pulses;
+    if (last_pulse_ns_ > 0 && edge.timestamp_ns > last_pulse_ns_)
+      stats.shaft_hz = 1e9 / static_cast<double>(edge.timestamp_ns - last_pulse_ns_);
+    last_pulse_ns_ = edge.timestamp_ns;
+  }
 }
 
 GpioLines open_gpio(const app::GpioConfig& config) {

@@ -104,6 +104,7 @@ class StreamsDaemon {
   std::vector<std::unique_ptr<Stream>> streams_;
   std::vector<std::unique_ptr<Device>> devices_;
   GpioLines gpio_;  // the top-level lines: relays on the worst alarm of all streams, tacho
+  TachoMeter tacho_;
   std::unique_ptr<LineFile> events_out_, csv_out_;
   std::string batch_, csv_batch_;
   SystemdNotifier notifier_;
@@ -532,6 +533,7 @@ std::string StreamsDaemon::status_text() const {
   std::string text = fmt::format("{} streams, {} samples, {} impacts ({} ok), alarm {} (worst); {}; {} overruns, {} write failures",
                                  streams_.size(), stats_.samples, stats_.events, stats_.events_ok, trend::to_string(worst),
                                  per_stream, overruns, stats_.events_failed_to_write);
+  if (gpio_.tacho) text += fmt::format(", shaft {:.1f} rpm", 60.0 * stats_.shaft_hz);
   if (!cfg_.output.capture.dir.empty())
     text += fmt::format(", captures {} written, {} removed, {} failed", stats_.captures_written, stats_.captures_removed,
                         stats_.captures_failed);
@@ -617,6 +619,7 @@ int StreamsDaemon::run(std::atomic<bool>& stop_flag, std::atomic<bool>& reload_f
       std::unique_lock<std::mutex> lock(wake_mutex_);
       wake_.wait_for(lock, std::chrono::milliseconds(1), [this] { return any_pending() || devices_done(); });
     }
+    if (gpio_.tacho) tacho_.poll(*gpio_.tacho, stats_);
     poll_network(false);
     const auto now = Clock::now();
     if (notifier_.watchdog_enabled() && now - last_ping >= notifier_.watchdog_interval() / 3) {

@@ -10,6 +10,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <csignal>
 #include <filesystem>
 #include <fstream>
 #include <map>
@@ -153,7 +154,7 @@ TEST_F(DaemonStreams, SixteenChannelsEqualAnalyzePerChannel) {
 // Three rigs: a and c steady, b with a damping step (+50 %) half way. Each stream has its own
 // trend (configured baseline: 2 s are too short to learn one) and relays; c has its own pipeline
 // (a mode at 1200 Hz: its own f_expected_hz and detector band). Only b's alarm and b's relay go,
-// and the top-level relay (the worst of all streams) with it.
+// and the top-level relay (the worst of all streams) with it. The top-level tacho gives the shaft speed.
 TEST_F(DaemonStreams, DampingStepRaisesOnlyThatStreamsAlarm) {
   const double fs = 25600.0, duration = 2.4, step_s = 1.2;
   const auto n = static_cast<std::size_t>(duration * fs);
@@ -175,7 +176,7 @@ TEST_F(DaemonStreams, DampingStepRaisesOnlyThatStreamsAlarm) {
   const std::string events = (dir_ / "ev.jsonl").string(), csv = (dir_ / "ev.csv").string();
   const std::string yaml = "source: {replay: {path: " + wav + ", speed: 0}}\n"
                            "output: {events: " + events + ", csv: " + csv + "}\n"
-                           "gpio: {enabled: true, alert_line: 1}\n"
+                           "gpio: {enabled: true, alert_line: 1, tacho_line: 2}\n"
                            "pipeline:\n  analyzer: {f_expected_hz: 860}\n  detector: {band_lo_hz: 730, band_hi_hz: 990}\n"
                            "  trend: {baseline_zeta: 0.02, baseline_ln_sd: 0.05}\n"
                            "streams:\n"
@@ -187,6 +188,10 @@ TEST_F(DaemonStreams, DampingStepRaisesOnlyThatStreamsAlarm) {
   options.config = app::parse_config(yaml, (dir_ / "c.yaml").string());
   ASSERT_EQ(options.config.streams.size(), 3u);
   std::map<int, std::shared_ptr<drivers::FakeRelayOutput>> relays;  // by line
+  auto tacho = std::make_shared<drivers::FakeTachoInput>("tacho");
+  // One shaft for all streams, 1500 rpm: a pulse every 40 ms (kernel timestamps in ns).
+  for (int i = 0; i < 5; ++i) tacho->inject({1'000'000'000LL + i * 40'000'000LL, true});
+  std::size_t tacho_lines = 0;
   options.gpio_factory = [&](const app::GpioConfig& g) {
     daemon::GpioLines lines;
     auto fake = std::make_shared<drivers::FakeRelayOutput>("line" + std::to_string(g.alert_line));
@@ -200,6 +205,19 @@ TEST_F(DaemonStreams, DampingStepRaisesOnlyThatStreamsAlarm) {
       std::uint64_t errors() const override { return f->errors(); }
     };
     lines.alert = std::make_unique<Shared>(fake);
+    struct SharedTacho : drivers::TachoInput {
+      std::shared_ptr<drivers::FakeTachoInput> t;
+      explicit SharedTacho(std::shared_ptr<drivers::FakeTachoInput> x) : t(std::move(x)) {}
+      std::size_t wait_edges(std::chrono::nanoseconds timeout, std::vector<drivers::TachoEdge>& out) override {
+        return t->wait_edges(timeout, out);
+      }
+      const std::string& name() const override { return t->name(); }
+      std::uint64_t errors() const override { return t->errors(); }
+    };
+    if (g.tacho_line >= 0) {  // the top-level lines only: the streams' own carry relays
+      ++tacho_lines;
+      lines.tacho = std::make_unique<SharedTacho>(tacho);
+    }
     return lines;
   };
   daemon::Daemon::clear_requests();
@@ -234,6 +252,10 @@ TEST_F(DaemonStreams, DampingStepRaisesOnlyThatStreamsAlarm) {
     const bool dropped = std::find(h.begin(), h.end(), false) != h.end();
     EXPECT_EQ(dropped, line == 11 || line == 1) << "line " << line;
   }
+  // Tacho (the top-level line, opened once): 5 pulses 40 ms apart -> 25 Hz shaft.
+  EXPECT_EQ(tacho_lines, 1u);
+  EXPECT_EQ(d.stats().tacho_pulses, 5u);
+  EXPECT_NEAR(d.stats().shaft_hz, 25.0, 1e-9);
   // The CSV: one file, a stream column.
   const std::string text = slurp(csv);
   EXPECT_EQ(text.rfind("t_s,sample_index,source,stream,f_hz", 0), 0u) << text.substr(0, 80);
@@ -285,6 +307,39 @@ TEST_F(DaemonStreams, ConfigurationErrorsAreExit2NamingTheKey) {
   EXPECT_NE(err_.find("streams[1].channel: channel 2 out of range (the source has 2 channels, 0-1)"), std::string::npos) << err_;
   EXPECT_EQ(daemon({"--config", cfg, "--replay", wav, "--channel", "1"}), 2);
   EXPECT_NE(err_.find("--channel"), std::string::npos) << err_;
+}
+
+// Log rotation with streams: after the event log is renamed away, SIGHUP makes the daemon write to a
+// new file at the configured path; together the two files hold every stream's events exactly once
+// (the single-channel analyze's, in order). The configuration itself is not re-applied (logged).
+TEST_F(DaemonStreams, SighupReopensTheEventLog) {
+  const std::string wav = write_rigs(dir_ / "two.wav", 2, 2.0);
+  const std::string cfg = write("s.yaml", streams_yaml(2, 2));
+  const fs::path log = dir_ / "ev.jsonl", rotated = dir_ / "ev.jsonl.1";
+  ChildProcess d({RIDGEWATCHD_PATH, "--config", cfg, "--replay", wav, "--speed", "2", "--events", log.string()}, {},
+                 (dir_ / "out").string(), (dir_ / "err").string());
+  // Start-up can take several hundred ms on a loaded machine: wait for the log to exist first.
+  for (int i = 0; i < 500 && !fs::exists(log); ++i) std::this_thread::sleep_for(10ms);
+  std::this_thread::sleep_for(300ms);
+  fs::rename(log, rotated);
+  d.signal(SIGHUP);
+  ASSERT_EQ(d.wait(30s), 0) << slurp(dir_ / "err");
+  const std::string err = slurp(dir_ / "err");
+  EXPECT_NE(err.find("SIGHUP: reopening the output files"), std::string::npos) << err;
+  auto old_part = by_stream(jsonl(slurp(rotated.string())));
+  const auto new_part = by_stream(jsonl(slurp(log.string())));
+  EXPECT_FALSE(old_part.empty());
+  EXPECT_FALSE(new_part.empty());
+  for (std::size_t ch = 0; ch < 2; ++ch) {
+    const std::string name = "ch" + std::to_string(ch);
+    auto all = old_part[name];
+    if (const auto it = new_part.find(name); it != new_part.end()) all.insert(all.end(), it->second.begin(), it->second.end());
+    const CliResult one = run_cli({"analyze", wav, "--channel", std::to_string(ch)});
+    ASSERT_EQ(one.exit_code, 0) << one.err;
+    const auto single = jsonl(one.out);
+    ASSERT_EQ(all.size(), single.size()) << name;
+    for (std::size_t i = 0; i < single.size(); ++i) EXPECT_EQ(all[i]["sample_index"], single[i]["sample_index"]) << name << " " << i;
+  }
 }
 
 TEST(WorkerPool, RunsEveryTaskOnceOnItsThreadAndRethrows) {
