@@ -205,18 +205,9 @@ TEST_F(DaemonStreams, DampingStepRaisesOnlyThatStreamsAlarm) {
       std::uint64_t errors() const override { return f->errors(); }
     };
     lines.alert = std::make_unique<Shared>(fake);
-    struct SharedTacho : drivers::TachoInput {
-      std::shared_ptr<drivers::FakeTachoInput> t;
-      explicit SharedTacho(std::shared_ptr<drivers::FakeTachoInput> x) : t(std::move(x)) {}
-      std::size_t wait_edges(std::chrono::nanoseconds timeout, std::vector<drivers::TachoEdge>& out) override {
-        return t->wait_edges(timeout, out);
-      }
-      const std::string& name() const override { return t->name(); }
-      std::uint64_t errors() const override { return t->errors(); }
-    };
     if (g.tacho_line >= 0) {  // the top-level lines only: the streams' own carry relays
       ++tacho_lines;
-      lines.tacho = std::make_unique<SharedTacho>(tacho);
+      lines.tacho = std::make_unique<drivers::SharedTachoInput>(tacho);
     }
     return lines;
   };
