@@ -15,6 +15,75 @@ namespace ridgewatch::app {
 
 namespace {
 
+// The pipeline section, at the top level and in each of `streams`.
+template <typename V>
+void walk_pipeline(pipeline::PipelineConfig& p, V& v) {
+  auto& d = p.detector;
+  auto& a = p.analyzer;
+  auto& t = p.trend;
+  v.map("detector", [&] {
+    v.num("band_lo_hz", d.band_lo_hz);
+    v.num("band_hi_hz", d.band_hi_hz);
+    v.num("sta_s", d.sta_s);
+    v.num("lta_s", d.lta_s);
+    v.num("trigger_ratio", d.trigger_ratio);
+    v.num("holdoff_s", d.holdoff_s);
+    v.num("spike_mad", d.spike_mad);
+  });
+  v.map("analyzer", [&] {
+    v.num("f_expected_hz", a.f_expected_hz);
+    v.num("band_rel", a.band_rel);
+    v.num("eta0", a.eta0);
+    v.num("pretrigger_s", a.pretrigger_s);
+    v.num("window_s", a.window_s);
+    v.method("method", a.method);
+    v.num("min_snr_db", a.min_snr_db);
+    v.num("max_ci_ratio", a.max_ci_ratio);
+    v.nullable("clip_level", a.clip_level);  // null: from the source format (resolve_format_defaults)
+    v.num("ml_band_rel", a.ml_band_rel);
+  });
+  v.map("trend", [&] {
+    v.count("baseline_events", t.baseline_events, 1, 1 << 20);
+    v.nullable("baseline_zeta", t.baseline_zeta);
+    v.nullable("baseline_ln_sd", t.baseline_ln_sd);
+    v.num("min_baseline_ln_sd", t.min_baseline_ln_sd);
+    v.num("ewma_lambda", t.ewma_lambda);
+    v.num("alert_sigma", t.alert_sigma);
+    v.num("danger_sigma", t.danger_sigma);
+    v.num("cusum_k", t.cusum_k);
+    v.num("cusum_h", t.cusum_h);
+    v.unbounded("clip_sigma", t.clip_sigma);
+    v.num("hysteresis_sigma", t.hysteresis_sigma);
+    v.count("confirm_k", t.confirm_k, 1, 64);
+    v.count("confirm_n", t.confirm_n, 1, 64);
+    v.flag("latching", t.latching);
+    v.flag("alarm_on_decrease", t.alarm_on_decrease);
+  });
+}
+
+template <typename V>
+void walk_combine(CombineConfig& k, V& v) {
+  v.text("type", k.type);
+  v.indices("channels", k.channels, 1023);
+  v.numbers("coefficients", k.coefficients);
+  v.numbers("sensitivity", k.sensitivity);
+}
+
+// One entry of `streams` (the keys it may give; its pipeline overlays the top-level one).
+template <typename V>
+void walk_stream(StreamConfig& s, V& v) {
+  v.text("name", s.name);
+  v.count("channel", s.channel, 0, 1023);
+  v.map("combine", [&] { walk_combine(s.combine, v); });
+  v.text("path", s.path);
+  v.text("rig", s.rig);
+  v.map("pipeline", [&] { walk_pipeline(s.pipeline, v); });
+  v.map("gpio", [&] {
+    v.count("alert_line", s.alert_line, -1, 4095);
+    v.count("danger_line", s.danger_line, -1, 4095);
+  });
+}
+
 // One description of the file layout, walked by the parser and by the printer, so the two cannot
 // drift apart. Range checks live in the components' validate() functions and in check_sources().
 template <typename V>
@@ -23,12 +92,7 @@ void walk(RidgewatchConfig& c, V& v) {
   v.map("source", [&] {
     v.text("type", c.source.type);
     v.num("ring_buffer_s", c.source.ring_buffer_s);
-    v.map("combine", [&] {
-      v.text("type", c.source.combine.type);
-      v.indices("channels", c.source.combine.channels, 1023);
-      v.numbers("coefficients", c.source.combine.coefficients);
-      v.numbers("sensitivity", c.source.combine.sensitivity);
-    });
+    v.map("combine", [&] { walk_combine(c.source.combine, v); });
     v.map("replay", [&] {
       v.text("path", c.source.replay.path);
       v.count("channel", c.source.replay.channel, 0, 1023);
@@ -48,49 +112,7 @@ void walk(RidgewatchConfig& c, V& v) {
       v.num("retry_max_s", c.source.alsa.retry_max_s);
     });
   });
-  v.map("pipeline", [&] {
-    auto& d = c.pipeline.detector;
-    auto& a = c.pipeline.analyzer;
-    auto& t = c.pipeline.trend;
-    v.map("detector", [&] {
-      v.num("band_lo_hz", d.band_lo_hz);
-      v.num("band_hi_hz", d.band_hi_hz);
-      v.num("sta_s", d.sta_s);
-      v.num("lta_s", d.lta_s);
-      v.num("trigger_ratio", d.trigger_ratio);
-      v.num("holdoff_s", d.holdoff_s);
-      v.num("spike_mad", d.spike_mad);
-    });
-    v.map("analyzer", [&] {
-      v.num("f_expected_hz", a.f_expected_hz);
-      v.num("band_rel", a.band_rel);
-      v.num("eta0", a.eta0);
-      v.num("pretrigger_s", a.pretrigger_s);
-      v.num("window_s", a.window_s);
-      v.method("method", a.method);
-      v.num("min_snr_db", a.min_snr_db);
-      v.num("max_ci_ratio", a.max_ci_ratio);
-      v.nullable("clip_level", a.clip_level);  // null: from the source format (resolve_format_defaults)
-      v.num("ml_band_rel", a.ml_band_rel);
-    });
-    v.map("trend", [&] {
-      v.count("baseline_events", t.baseline_events, 1, 1 << 20);
-      v.nullable("baseline_zeta", t.baseline_zeta);
-      v.nullable("baseline_ln_sd", t.baseline_ln_sd);
-      v.num("min_baseline_ln_sd", t.min_baseline_ln_sd);
-      v.num("ewma_lambda", t.ewma_lambda);
-      v.num("alert_sigma", t.alert_sigma);
-      v.num("danger_sigma", t.danger_sigma);
-      v.num("cusum_k", t.cusum_k);
-      v.num("cusum_h", t.cusum_h);
-      v.unbounded("clip_sigma", t.clip_sigma);
-      v.num("hysteresis_sigma", t.hysteresis_sigma);
-      v.count("confirm_k", t.confirm_k, 1, 64);
-      v.count("confirm_n", t.confirm_n, 1, 64);
-      v.flag("latching", t.latching);
-      v.flag("alarm_on_decrease", t.alarm_on_decrease);
-    });
-  });
+  v.map("pipeline", [&] { walk_pipeline(c.pipeline, v); });
   v.map("output", [&] {
     v.text("events", c.output.events);
     v.text("csv", c.output.csv);
@@ -135,12 +157,17 @@ void walk(RidgewatchConfig& c, V& v) {
     v.num("status_interval_s", c.logging.status_interval_s);
   });
   v.map("http", [&] { v.text("listen", c.http.listen); });
+  v.count("workers", c.workers, 0, 256);
+  v.streams("streams");  // read after the top level (parse_streams): each overlays its pipeline
 }
 
 // Parser: overlays the YAML onto the defaults, rejecting unknown keys.
 class Parser {
  public:
-  Parser(const YamlReader& r, const YAML::Node& root) : r_(r) { stack_.push_back({root, ""}); }
+  /// `root_path`: where `root` sits in the file ("streams[2]" for an entry of streams), for messages.
+  Parser(const YamlReader& r, const YAML::Node& root, std::string root_path = "") : r_(r), prefix_(root_path) {
+    stack_.push_back({root, std::move(root_path)});
+  }
 
   void map(const char* key, const std::function<void()>& body) {
     // Collect the keys this section knows by running the body once in "key collection" mode.
@@ -231,8 +258,16 @@ class Parser {
         r_.fail(YamlReader::join(path, key), "old spelling of capture.dir; give only one of the two");
     });
   }
-  void check_top() { r_.check_map(stack_.front().node, "", known_.front()); }
-  const std::set<std::string>& given() const { return given_; }
+  /// A key read later by its own code (streams: parse_streams); only marked as known here.
+  void streams(const char* key) { known_.back().insert(key); }
+  void check_top() { r_.check_map(stack_.front().node, prefix_, known_.front()); }
+  /// The YAML paths given, relative to the root ("pipeline.analyzer.f_expected_hz").
+  std::set<std::string> given() const {
+    if (prefix_.empty()) return given_;
+    std::set<std::string> relative;
+    for (const auto& g : given_) relative.insert(g.substr(prefix_.size() + 1));
+    return relative;
+  }
 
  private:
   struct Frame {
@@ -261,6 +296,7 @@ class Parser {
   }
 
   const YamlReader& r_;
+  std::string prefix_;
   std::vector<Frame> stack_;
   std::vector<std::set<std::string>> known_{1};
   bool collecting_ = false;
@@ -289,6 +325,7 @@ class Printer {
   void count(const char* key, Int v, long long, long long) { line(key, std::to_string(v)); }
   void method(const char* key, dsp::DampingMethod m) { line(key, std::string(dsp::to_string(m))); }
   void legacy_text(const char*, const std::string&) {}
+  void streams(const char*) {}  // not printed (config_yaml.hpp)
   void numbers(const char* key, const std::vector<double>& v) {
     std::string t = "[";
     for (std::size_t i = 0; i < v.size(); ++i) t += (i ? ", " : "") + YamlReader::format(v[i]);
@@ -377,11 +414,12 @@ void check_values(const YamlReader& r, const RidgewatchConfig& c) {
 
 }  // namespace
 
-std::vector<double> combine_gains(const RidgewatchConfig& c, const std::string& name, std::size_t available,
-                                  bool need_rig) {
-  const CombineConfig& k = c.source.combine;
+namespace {
+// combine_gains for the combination `k` at YAML path `where`, radii from `rig`.
+std::vector<double> gains_of(const CombineConfig& k, const RigModelInfo& rig, const std::string& name,
+                             const std::string& where, std::size_t available, bool need_rig) {
   auto fail = [&](const std::string& key, const std::string& what) {
-    throw UsageError(name + ": source.combine." + key + ": " + what);
+    throw UsageError(name + ": " + where + "." + key + ": " + what);
   };
   const std::size_t n = k.channels.size();
   if (k.type == "none") {
@@ -412,11 +450,11 @@ std::vector<double> combine_gains(const RidgewatchConfig& c, const std::string& 
       fail("channels", "mesh_velocity needs exactly two channels, [φ̇1 of the pinion, φ̇2 of the wheel] (got " +
                            std::to_string(n) + ")");
     if (!k.coefficients.empty()) fail("coefficients", "are taken from the rig file for mesh_velocity; leave them out");
-    if (c.rig_model.path.empty()) {
+    if (rig.path.empty()) {
       if (need_rig) fail("type", "mesh_velocity needs the rig file (key rig, or --rig) for the base radii rb1, rb2");
       coef = {0.0, 0.0};
     } else {
-      coef = {c.rig_model.rb1_m, c.rig_model.rb2_m};  // q̇ = r_b1 φ̇1 + r_b2 φ̇2, paper Appendix A
+      coef = {rig.rb1_m, rig.rb2_m};  // q̇ = r_b1 φ̇1 + r_b2 φ̇2, paper Appendix A
     }
   } else {
     if (k.coefficients.size() != n)
@@ -427,6 +465,29 @@ std::vector<double> combine_gains(const RidgewatchConfig& c, const std::string& 
   for (std::size_t i = 0; i < n; ++i)
     if (!k.sensitivity.empty()) coef[i] /= k.sensitivity[i];
   return coef;
+}
+}  // namespace
+
+std::vector<double> combine_gains(const RidgewatchConfig& c, const std::string& name, std::size_t available,
+                                  bool need_rig) {
+  return gains_of(c.source.combine, c.rig_model, name, "source.combine", available, need_rig);
+}
+
+std::vector<double> combine_gains(const StreamConfig& s, const std::string& name, const std::string& key,
+                                  std::size_t available, bool need_rig) {
+  return gains_of(s.combine, s.rig_model, name, key, available, need_rig);
+}
+
+void check_stream_channels(const RidgewatchConfig& c, const std::string& name, std::size_t i, std::size_t available) {
+  const StreamConfig& s = c.streams.at(i);
+  const std::string key = "streams[" + std::to_string(i) + "]";
+  if (s.combine.type != "none") {
+    combine_gains(s, name, key + ".combine", available, false);
+    return;
+  }
+  if (s.channel >= available)
+    throw UsageError(name + ": " + key + ".channel: channel " + std::to_string(s.channel) + " out of range (the source has " +
+                     std::to_string(available) + " channels, 0-" + std::to_string(available - 1) + ")");
 }
 
 RidgewatchConfig default_config() {
@@ -440,6 +501,82 @@ void resolve_format_defaults(pipeline::PipelineConfig& p, std::optional<double> 
 }
 
 namespace {
+// A stream name goes into events, topics and directory names: a short plain word.
+bool plain_name(const std::string& n) {
+  return !n.empty() && n.size() <= 64 &&
+         n.find_first_not_of("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ0123456789_.-") == std::string::npos &&
+         n != "." && n != "..";
+}
+
+// streams[i]: the top-level pipeline (with its rig's defaults) overlaid by the stream's keys, then
+// by the stream's own rig for the keys neither gives.
+StreamConfig parse_stream(const YamlReader& r, const YAML::Node& node, const RidgewatchConfig& c, std::size_t i) {
+  const std::string key = "streams[" + std::to_string(i) + "]";
+  if (!node.IsMap()) r.fail(key, "must be a mapping (name, channel or combine, pipeline, gpio, ...)");
+  StreamConfig s;
+  s.pipeline = c.pipeline;
+  s.rig_model = c.rig_model;
+  Parser p(r, node, key);
+  walk_stream(s, p);
+  p.check_top();
+  s.given = c.given;
+  for (const auto& g : p.given()) s.given.insert(g);
+  if (!node["name"]) r.fail(key + ".name", "missing (required: the events' stream field)");
+  if (!plain_name(s.name))
+    r.fail(key + ".name", "must be 1-64 letters, digits, '_', '.' or '-' (got '" + s.name + "')");
+  for (std::size_t j = 0; j < c.streams.size(); ++j)
+    if (c.streams[j].name == s.name)
+      r.fail(key + ".name", "'" + s.name + "' is also the name of streams[" + std::to_string(j) + "]; names must differ");
+  if (node["channel"] && s.combine.type != "none") r.fail(key + ".channel", "give either channel or combine, not both");
+  if (!s.path.empty() && c.source.type != "replay") r.fail(key + ".path", "only with source.type replay");
+  if (!s.rig.empty()) {
+    std::filesystem::path rig(s.rig);
+    if (rig.is_relative()) rig = std::filesystem::path(r.name()).parent_path() / rig;
+    RidgewatchConfig t;
+    t.given = s.given;
+    t.pipeline = s.pipeline;
+    apply_rig_defaults(t, rig.string(), r.name() + ": " + key + ".rig");
+    s.pipeline = t.pipeline;
+    s.rig_model = t.rig_model;
+  }
+  pipeline::PipelineConfig v = s.pipeline;
+  v.sample_rate_hz = c.source.type == "alsa" ? c.source.alsa.rate_hz : 5e6;  // as check_values
+  try {
+    pipeline::validate(v);
+  } catch (const std::invalid_argument& e) {
+    r.fail(key, std::string("pipeline.") + e.what());
+  }
+  if ((s.alert_line >= 0 || s.danger_line >= 0) && !c.gpio.enabled) r.fail(key + ".gpio", "relay lines need gpio.enabled: true");
+  return s;
+}
+
+void parse_streams(const YamlReader& r, const YAML::Node& root, RidgewatchConfig& c) {
+  const YAML::Node list = root["streams"];
+  if (!list || list.IsNull()) return;
+  if (!list.IsSequence()) r.fail("streams", "must be a list of streams (- name: ..., channel: ...)");
+  if (list.size() == 0) return;
+  if (c.source.combine.type != "none") r.fail("source.combine", "not with streams: give each stream its own combine");
+  if (!c.http.listen.empty())
+    r.fail("http.listen", "not available with streams yet (its page and metrics show one stream); leave it out");
+  std::vector<std::pair<int, std::string>> lines;  // relay and tacho lines in use, and by whom
+  for (const auto& [line, who] : {std::pair{c.gpio.tacho_line, "gpio.tacho_line"}, {c.gpio.alert_line, "gpio.alert_line"},
+                                  {c.gpio.danger_line, "gpio.danger_line"}})
+    if (line >= 0) lines.emplace_back(line, who);
+  for (std::size_t i = 0; i < list.size(); ++i) {
+    c.streams.push_back(parse_stream(r, list[i], c, i));
+    const StreamConfig& s = c.streams.back();
+    const std::string key = "streams[" + std::to_string(i) + "]";
+    combine_gains(s, r.name(), key + ".combine", c.source.type == "alsa" ? c.source.alsa.channels : 0, false);
+    if (c.source.type == "alsa") check_stream_channels(c, r.name(), i, c.source.alsa.channels);
+    for (const auto& [line, who] : {std::pair{s.alert_line, key + ".gpio.alert_line"}, {s.danger_line, key + ".gpio.danger_line"}}) {
+      if (line < 0) continue;
+      for (const auto& [used, by] : lines)
+        if (used == line) r.fail(who, "line " + std::to_string(line) + " is already " + by);
+      lines.emplace_back(line, who);
+    }
+  }
+}
+
 RidgewatchConfig parse_config_unguarded(const std::string& text, const std::string& name) {
   const YamlReader r(name);
   const YAML::Node root = r.parse(text);
@@ -459,6 +596,7 @@ RidgewatchConfig parse_config_unguarded(const std::string& text, const std::stri
     apply_rig_defaults(c, rig.string(), name + ": rig");
   }
   check_values(r, c);
+  parse_streams(r, root, c);
   return c;
 }
 }  // namespace

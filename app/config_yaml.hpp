@@ -127,6 +127,21 @@ struct RigModelInfo {
   std::string radius_note;
 };
 
+/// One of several streams of one daemon (`streams:`): its input, its pipeline (the top-level
+/// `pipeline` with the stream's own keys over it), its trend and alarms, its relays.
+struct StreamConfig {
+  std::string name;            ///< the events' `stream` field; [A-Za-z0-9_.-], unique
+  std::size_t channel = 0;     ///< 0-based input channel (when combine.type is none)
+  CombineConfig combine;       ///< a derived channel instead of `channel`
+  std::string path;            ///< replay: this stream's file (as source.replay.path); "" = source.replay.path
+  std::string rig;             ///< this stream's rig file; "" = the top-level rig
+  RigModelInfo rig_model;      ///< what the stream's rig (or the top-level one) supplied
+  std::set<std::string> given; ///< keys given at the top level or in the stream ("pipeline.analyzer.f_expected_hz")
+  pipeline::PipelineConfig pipeline;  ///< the effective pipeline of this stream
+  int alert_line = -1;         ///< relay for this stream's alarm (gpio.chip), -1: none
+  int danger_line = -1;
+};
+
 struct RidgewatchConfig {
   /// Rig description (config/rigs/*.yaml) whose model supplies f_expected_hz and the detector band
   /// when the file does not give them; "" = none. Relative to the configuration file's directory.
@@ -140,6 +155,12 @@ struct RidgewatchConfig {
   GpioConfig gpio;
   LoggingConfig logging;
   HttpConfig http;
+  /// Several streams in one daemon; empty: the one stream of `source` (channel or combine) and
+  /// `pipeline`. Filled by the parser with each stream's effective pipeline.
+  std::vector<StreamConfig> streams;
+  /// Threads processing the streams (the daemon's processing loop counts as one); 0 = one per
+  /// stream, at most the number of cores.
+  std::size_t workers = 0;
 };
 
 /// Defaults of every key (pipeline.analyzer.clip_level: null, i.e. from the source's format).
@@ -151,6 +172,14 @@ RidgewatchConfig default_config();
 /// supply the rig later), gains then 0 for mesh_velocity without a rig.
 std::vector<double> combine_gains(const RidgewatchConfig& config, const std::string& name,
                                   std::size_t channels_available = 0, bool need_rig = true);
+/// The same for one of several streams (`streams[i].combine` in messages); its radii from the
+/// stream's rig model.
+std::vector<double> combine_gains(const StreamConfig& stream, const std::string& name, const std::string& key,
+                                  std::size_t channels_available = 0, bool need_rig = true);
+/// Checks every stream's channel (or combined channels) against the channels of its input, `available`
+/// (> 0): UsageError naming `name: streams[i].channel` or `streams[i].combine.channels[k]`.
+void check_stream_channels(const RidgewatchConfig& config, const std::string& name, std::size_t stream_index,
+                           std::size_t available);
 /// Keys whose default depends on the source's sample format, once the source is open: a clip_level of
 /// null (NaN) becomes 0.999 x the format's full scale for integer PCM (SourceInfo::full_scale) and
 /// stays NaN (no clipping check) for float data in physical units.
@@ -159,7 +188,8 @@ void resolve_format_defaults(pipeline::PipelineConfig& pipeline, std::optional<d
 RidgewatchConfig load_config_file(const std::string& path);
 /// Same from text; `name` stands for the file in messages.
 RidgewatchConfig parse_config(const std::string& text, const std::string& name);
-/// The configuration as YAML in the file's layout (for --print-defaults and logs).
+/// The configuration as YAML in the file's layout (for --print-defaults and logs); `streams` are
+/// not printed (each one's pipeline is the top-level one with the stream's keys over it).
 std::string to_yaml(const RidgewatchConfig& config);
 
 }  // namespace ridgewatch::app

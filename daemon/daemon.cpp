@@ -25,6 +25,7 @@
 #include "daemon/network_outputs.hpp"
 #include "daemon/notifier.hpp"
 #include "daemon/sources.hpp"
+#include "daemon/streams_daemon.hpp"
 
 namespace ridgewatch::daemon {
 
@@ -35,20 +36,6 @@ std::atomic<bool> g_reload{false};
 std::atomic<bool> g_latch_reset{false};
 
 using Clock = std::chrono::steady_clock;
-
-// Damping ratio with 4 significant digits ("-" when not estimated).
-std::string format_zeta(double zeta) { return std::isfinite(zeta) ? fmt::format("{:.4g}", zeta) : "-"; }
-
-std::string iso8601_utc(std::chrono::system_clock::time_point tp) {
-  const auto secs = std::chrono::time_point_cast<std::chrono::seconds>(tp);
-  const auto ms = std::chrono::duration_cast<std::chrono::milliseconds>(tp - secs).count();
-  const std::time_t t = std::chrono::system_clock::to_time_t(secs);
-  std::tm tm{};
-  gmtime_r(&t, &tm);
-  char buf[32];
-  std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%S", &tm);
-  return fmt::format("{}.{:03}Z", buf, ms);
-}
 
 }  // namespace
 
@@ -99,8 +86,7 @@ struct Daemon::Impl {
   std::atomic<std::size_t> producer_resume_items{0};  // free space the waiting producer wants
 
   GpioLines gpio;
-  std::vector<drivers::TachoEdge> edges;
-  std::int64_t last_pulse_ns = 0;
+  TachoMeter tacho_meter;
   std::uint64_t relay_errors_seen = 0;
 
   SystemdNotifier notifier;
@@ -307,16 +293,7 @@ struct Daemon::Impl {
   }
 
   void poll_tacho() {
-    if (!gpio.tacho) return;
-    edges.clear();
-    gpio.tacho->wait_edges(std::chrono::nanoseconds(0), edges);
-    for (const auto& edge : edges) {
-      if (!edge.rising) continue;
-      ++stats.tacho_pulses;
-      if (last_pulse_ns > 0 && edge.timestamp_ns > last_pulse_ns)
-        stats.shaft_hz = 1e9 / static_cast<double>(edge.timestamp_ns - last_pulse_ns);
-      last_pulse_ns = edge.timestamp_ns;
-    }
+    if (gpio.tacho) tacho_meter.poll(*gpio.tacho, stats);
   }
 
   // The samples of an impact's window (pretrigger + decay) from the ring's history; false when they
@@ -460,6 +437,7 @@ const DaemonStats& Daemon::stats() const { return impl_->stats; }
 
 int Daemon::run() {
   Impl& d = *impl_;
+  if (!d.cfg.streams.empty()) return run_streams(d.options, d.stats, g_stop, g_reload, g_latch_reset);
   try {
     d.source = d.options.source_factory ? d.options.source_factory(d.cfg.source)
                                          : open_source(d.cfg, d.options.config_path.empty() ? "configuration" : d.options.config_path);
@@ -626,6 +604,18 @@ int Daemon::run() {
     return app::kExitBadInput;
   }
   return app::kExitOk;
+}
+
+void TachoMeter::poll(drivers::TachoInput& tacho, DaemonStats& stats) {
+  edges_.clear();
+  tacho.wait_edges(std::chrono::nanoseconds(0), edges_);
+  for (const auto& edge : edges_) {
+    if (!edge.rising) continue;
+    ++stats.tacho_pulses;
+    if (last_pulse_ns_ > 0 && edge.timestamp_ns > last_pulse_ns_)
+      stats.shaft_hz = 1e9 / static_cast<double>(edge.timestamp_ns - last_pulse_ns_);
+    last_pulse_ns_ = edge.timestamp_ns;
+  }
 }
 
 GpioLines open_gpio(const app::GpioConfig& config) {

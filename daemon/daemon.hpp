@@ -13,6 +13,7 @@
 #include <functional>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "app/config_yaml.hpp"
 #include "drivers/gpio.hpp"
@@ -58,6 +59,18 @@ struct DaemonStats {
   double latency_max_ms = NAN;
   double latency_mean_ms = NAN;
   double shaft_hz = 0.0;  ///< from the last two tacho pulses (0 without tacho)
+};
+
+/// The shaft speed from the tacho line's rising edges (both daemons poll it between processing steps):
+/// counts the pulses into stats.tacho_pulses and sets stats.shaft_hz from the last two (Hz).
+class TachoMeter {
+ public:
+  /// Takes the edges that arrived since the last call (does not wait).
+  void poll(drivers::TachoInput& tacho, DaemonStats& stats);
+
+ private:
+  std::vector<drivers::TachoEdge> edges_;
+  std::int64_t last_pulse_ns_ = 0;
 };
 
 class Daemon {

@@ -8,9 +8,11 @@
 #include <cerrno>
 #include <cmath>
 #include <cstring>
+#include <ctime>
 #include <filesystem>
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <spdlog/fmt/fmt.h>
 #include <sstream>
 #include <vector>
 
@@ -109,11 +111,27 @@ void LineFile::sync() {
   if (fd_ >= 0 && owns_fd_) ::fsync(fd_);
 }
 
-std::string event_csv_header() {
-  return "t_s,sample_index,source,f_hz,zeta,zeta_ci95_lo,zeta_ci95_hi,snr_db,status,alarm";
+// Damping ratio with 4 significant digits ("-" when not estimated).
+std::string format_zeta(double zeta) { return std::isfinite(zeta) ? fmt::format("{:.4g}", zeta) : "-"; }
+
+std::string iso8601_utc(std::chrono::system_clock::time_point tp) {
+  const auto secs = std::chrono::time_point_cast<std::chrono::seconds>(tp);
+  const auto ms = std::chrono::duration_cast<std::chrono::milliseconds>(tp - secs).count();
+  const std::time_t t = std::chrono::system_clock::to_time_t(secs);
+  std::tm tm{};
+  gmtime_r(&t, &tm);
+  char buf[32];
+  std::strftime(buf, sizeof buf, "%Y-%m-%dT%H:%M:%S", &tm);
+  return fmt::format("{}.{:03}Z", buf, ms);
 }
 
-std::string event_csv_row(const pipeline::ImpactEvent& e, const std::string& source) {
+
+std::string event_csv_header(bool with_stream) {
+  return with_stream ? "t_s,sample_index,source,stream,f_hz,zeta,zeta_ci95_lo,zeta_ci95_hi,snr_db,status,alarm"
+                     : "t_s,sample_index,source,f_hz,zeta,zeta_ci95_lo,zeta_ci95_hi,snr_db,status,alarm";
+}
+
+std::string event_csv_row(const pipeline::ImpactEvent& e, const std::string& source, const std::string& stream) {
   auto num = [](double v) {
     if (!std::isfinite(v)) return std::string();
     std::ostringstream o;
@@ -124,6 +142,7 @@ std::string event_csv_row(const pipeline::ImpactEvent& e, const std::string& sou
   std::string quoted = "\"";
   for (char c : source) quoted += c == '"' ? std::string("\"\"") : std::string(1, c);
   quoted += "\"";
+  if (!stream.empty()) quoted += ",\"" + stream + "\"";  // stream names are plain words (config_yaml.cpp)
   std::ostringstream o;
   o << num(e.t_s) << ',' << e.sample_index << ',' << quoted << ',' << num(e.f_hz) << ',' << num(e.zeta) << ','
     << num(e.zeta_ci95_lo) << ',' << num(e.zeta_ci95_hi) << ',' << num(e.snr_db) << ',' << pipeline::to_string(e.status)

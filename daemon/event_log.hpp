@@ -6,6 +6,7 @@
 // removed again, so the file holds whole lines only, also when the process is killed.
 #pragma once
 
+#include <chrono>
 #include <cstdint>
 #include <span>
 #include <string>
@@ -52,8 +53,13 @@ class LineFile {
 };
 
 /// One CSV row per event (header: t_s,sample_index,source,f_hz,zeta,zeta_ci95_lo,zeta_ci95_hi,snr_db,status,alarm).
-std::string event_csv_row(const pipeline::ImpactEvent& e, const std::string& source);
-std::string event_csv_header();
+/// Damping ratio with 4 significant digits for status lines ("-" when not estimated).
+std::string format_zeta(double zeta);
+/// ISO 8601 UTC with milliseconds, the events' wall_time ("2026-01-02T03:04:05.678Z").
+std::string iso8601_utc(std::chrono::system_clock::time_point tp);
+/// `stream`: one of several streams (ridgewatchd `streams:`), a column after source; "" = no column.
+std::string event_csv_row(const pipeline::ImpactEvent& e, const std::string& source, const std::string& stream = {});
+std::string event_csv_header(bool with_stream = false);
 
 /// Writes BASE.wav (float32) and BASE.json for one impact window; returns an error text or "".
 std::string write_capture(const std::string& dir, const pipeline::ImpactEvent& e, const std::string& source,

@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdlib>
+#include <filesystem>
 #include <optional>
 #include <span>
 #include <iostream>
@@ -19,6 +20,8 @@
 #include "app/survey_report.hpp"
 #include "daemon/daemon.hpp"
 #include "daemon/relay_test.hpp"
+#include "daemon/sources.hpp"
+#include "drivers/replay_file.hpp"
 #include "drivers/alsa_source.hpp"
 #include "drivers/gpio.hpp"
 #include "drivers/sample_source.hpp"
@@ -105,6 +108,16 @@ int run(const std::vector<std::string>& argv) {
   if (const auto file = args.value("--check-config")) {
     const app::RidgewatchConfig checked = app::load_config_file(*file);  // throws UsageError naming the key
     app::combine_gains(checked, *file);  // the daemon has no --rig: mesh_velocity needs the rig key
+    for (std::size_t i = 0; i < checked.streams.size(); ++i) {
+      app::combine_gains(checked.streams[i], *file, "streams[" + std::to_string(i) + "].combine");  // needs its rig
+      // A replayed file that is there already: its channels must exist (a missing file is not an
+      // error of the configuration: --replay may name it at start).
+      const std::string path = ridgewatch::daemon::stream_path(checked, i);
+      std::error_code ec;
+      if (checked.source.type == "replay" && !path.empty() && std::filesystem::is_regular_file(path, ec))
+        app::check_stream_channels(checked, *file, i,
+                                   ridgewatch::drivers::open_replay(path, {})->info().channels);
+    }
     std::cout << *file << ": ok\n";
     return app::kExitOk;
   }
@@ -142,7 +155,12 @@ int run(const std::vector<std::string>& argv) {
     return ridgewatch::daemon::test_relays(lines, std::cin, std::cout, args.has("--yes"), std::chrono::seconds(2));
   }
   if (args.has("--yes")) throw app::UsageError("--yes goes with --test-relays");
-  if (config.source.type == "replay" && config.source.replay.path.empty())
+  if (args.has("--channel") && !config.streams.empty())
+    throw app::UsageError("--channel: not with streams in the configuration (each stream names its channel)");
+  // The one stream, or any stream without its own path, reads source.replay.path.
+  const bool needs_path = config.streams.empty() || std::any_of(config.streams.begin(), config.streams.end(),
+                                                                [](const auto& s) { return s.path.empty(); });
+  if (config.source.type == "replay" && config.source.replay.path.empty() && needs_path)
     throw app::UsageError("no input: set source.replay.path in the configuration or pass --replay FILE");
   if (const auto lvl = args.value("--log-level");
       lvl && *lvl != "trace" && *lvl != "debug" && *lvl != "info" && *lvl != "warn" && *lvl != "error")

@@ -67,6 +67,26 @@ std::unique_ptr<drivers::SampleSource> open_source(const app::RidgewatchConfig& 
   return open_with_gains(c.source, app::combine_gains(c, config_name, available));
 }
 
+std::string stream_path(const app::RidgewatchConfig& c, std::size_t i) {
+  return c.streams.at(i).path.empty() ? c.source.replay.path : c.streams[i].path;
+}
+
+std::unique_ptr<drivers::SampleSource> open_stream_replay(const app::RidgewatchConfig& c, std::size_t i,
+                                                          const std::string& config_name) {
+  const app::StreamConfig& s = c.streams.at(i);
+  app::SourceConfig source = c.source;
+  source.replay.path = stream_path(c, i);
+  source.replay.channel = s.channel;
+  source.combine = s.combine;
+  // The file's channel count first, so a channel it lacks is a configuration error naming the key.
+  drivers::ReplayOptions probe;
+  if (c.source.replay.rate_hz > 0) probe.csv_rate_hz = c.source.replay.rate_hz;
+  const std::size_t available = drivers::open_replay(source.replay.path, probe)->info().channels;
+  app::check_stream_channels(c, config_name, i, available);
+  if (s.combine.type == "none") return open_with_gains(source, {});
+  return open_with_gains(source, app::combine_gains(s, config_name, "streams[" + std::to_string(i) + "].combine", available));
+}
+
 std::uint64_t take_source_gap(drivers::SampleSource& source) {
   if (auto* alsa = dynamic_cast<drivers::AlsaSource*>(&source)) return alsa->take_gap_frames();
   return 0;

@@ -217,7 +217,7 @@ void AlsaSource::open_and_configure() {
   buffer_frames_ = buffer;
   // Allocated once per (re)open, never per read.
   raw_.assign(period_frames_ * config_.channels * bytes_per_sample_, 0);
-  if (!config_.gains.empty()) mix_.assign(period_frames_, 0.0);
+  mix_.assign(period_frames_, 0.0);
 }
 
 void AlsaSource::handle_error(long err) {
@@ -279,38 +279,54 @@ bool AlsaSource::reconnect() {
   return false;
 }
 
-AlsaSource::ReadResult AlsaSource::read_block(std::span<double> out) {
-  ReadResult result;
-  while (result.count == 0 && !out.empty()) {
-    if (stop_.load(std::memory_order_relaxed)) return result;
-    if (lost_ && !reconnect()) return result;
-    const std::size_t frames = std::min(out.size(), period_frames_);
+std::size_t AlsaSource::read_period(std::size_t frames) {
+  for (;;) {
+    if (stop_.load(std::memory_order_relaxed)) return 0;
+    if (lost_ && !reconnect()) return 0;
     // The file plugin leaves the buffer unwritten past the end of its input file: zero it first.
     std::fill(raw_.begin(), raw_.end(), static_cast<unsigned char>(0));
-    const snd_pcm_sframes_t n = snd_pcm_readi(pcm_, raw_.data(), static_cast<snd_pcm_uframes_t>(frames));
-    if (n < 0) {
-      handle_error(n);
-      continue;
-    }
-    if (config_.gains.empty()) {
-      convert(raw_.data(), static_cast<std::size_t>(n), config_.channels, config_.channel, config_.format, out.data());
-    } else {
-      // Derived channel: the weighted sum of the channels, in double precision.
-      std::fill(out.begin(), out.begin() + n, 0.0);
-      for (std::size_t c = 0; c < config_.channels; ++c) {
-        const double g = config_.gains[c];
-        if (g == 0.0) continue;
-        convert(raw_.data(), static_cast<std::size_t>(n), config_.channels, c, config_.format, mix_.data());
-        for (std::size_t i = 0; i < static_cast<std::size_t>(n); ++i) out[i] += g * mix_[i];
-      }
-    }
-    result.count = static_cast<std::size_t>(n);
+    const snd_pcm_sframes_t n = snd_pcm_readi(pcm_, raw_.data(), static_cast<snd_pcm_uframes_t>(std::min(frames, period_frames_)));
+    if (n > 0) return static_cast<std::size_t>(n);
+    if (n < 0) handle_error(n);
   }
+}
+
+AlsaSource::ReadResult AlsaSource::finish_read(std::size_t count) {
+  ReadResult result;
+  result.count = count;
   result.gap_frames_before = pending_gap_frames_;
   pending_gap_frames_ = 0;
   counters_.frames_read.fetch_add(result.count, std::memory_order_relaxed);
   counters_.gap_frames.fetch_add(result.gap_frames_before, std::memory_order_relaxed);
   return result;
+}
+
+AlsaSource::ReadResult AlsaSource::read_block(std::span<double> out) {
+  const std::size_t n = out.empty() ? 0 : read_period(out.size());
+  if (n == 0) return finish_read(0);
+  if (config_.gains.empty()) {
+    convert(raw_.data(), n, config_.channels, config_.channel, config_.format, out.data());
+  } else {
+    // Derived channel: the weighted sum of the channels, in double precision.
+    std::fill(out.begin(), out.begin() + static_cast<std::ptrdiff_t>(n), 0.0);
+    for (std::size_t c = 0; c < config_.channels; ++c) {
+      const double g = config_.gains[c];
+      if (g == 0.0) continue;
+      convert(raw_.data(), n, config_.channels, c, config_.format, mix_.data());
+      for (std::size_t i = 0; i < n; ++i) out[i] += g * mix_[i];
+    }
+  }
+  return finish_read(n);
+}
+
+AlsaSource::ReadResult AlsaSource::read_frames(std::span<double> interleaved) {
+  const std::size_t channels = config_.channels;
+  const std::size_t n = interleaved.size() < channels ? 0 : read_period(interleaved.size() / channels);
+  for (std::size_t c = 0; c < channels && n > 0; ++c) {
+    convert(raw_.data(), n, channels, c, config_.format, mix_.data());
+    for (std::size_t i = 0; i < n; ++i) interleaved[i * channels + c] = mix_[i];
+  }
+  return finish_read(n);
 }
 
 std::size_t AlsaSource::read(std::span<double> out) {

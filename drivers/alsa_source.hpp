@@ -145,6 +145,10 @@ class AlsaSource : public SampleSource {
   /// period of samples. The gap before them: take_gap_frames().
   std::size_t read(std::span<double> out) override;
   ReadResult read_block(std::span<double> out);
+  /// Every channel, interleaved (frame i, channel c at interleaved[i * channels + c]), with the same
+  /// blocking, recovery and gap rules as read_block; count = frames (at most one period and
+  /// interleaved.size() / channels). For several streams from one device (ridgewatchd `streams:`).
+  ReadResult read_frames(std::span<double> interleaved);
   /// Frames lost right before the first sample of the last read() (plus any earlier gaps not taken).
   std::uint64_t take_gap_frames();
 
@@ -162,6 +166,8 @@ class AlsaSource : public SampleSource {
   void close_pcm();
   void handle_error(long err);
   bool reconnect();  // false when stopped
+  std::size_t read_period(std::size_t frames);  // up to `frames` into raw_, recovering; 0 when stopped
+  ReadResult finish_read(std::size_t count);    // attaches and counts the pending gap
   void set_last_error(std::string message);
   std::string device_prefix() const;
 
@@ -174,7 +180,7 @@ class AlsaSource : public SampleSource {
   std::size_t buffer_frames_ = 0;
   std::size_t bytes_per_sample_ = 0;
   std::vector<unsigned char> raw_;  // one period of interleaved frames
-  std::vector<double> mix_;         // one period of one channel (config_.gains), sized with raw_
+  std::vector<double> mix_;         // one period of one channel (gains, read_frames), sized with raw_
   ReconnectBackoff backoff_;
   std::uint64_t pending_gap_frames_ = 0;  // lost before the next delivered sample
   std::uint64_t taken_gap_frames_ = 0;    // gap before the last read's samples, for take_gap_frames

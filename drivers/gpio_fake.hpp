@@ -5,6 +5,7 @@
 #include <chrono>
 #include <condition_variable>
 #include <deque>
+#include <memory>
 #include <mutex>
 #include <string>
 #include <utility>
@@ -58,6 +59,20 @@ class FakeTachoInput : public TachoInput {
   std::deque<TachoEdge> pending_;
   bool fail_next_ = false;
   std::uint64_t errors_ = 0;
+};
+
+/// A TachoInput that forwards to a FakeTachoInput the test keeps (the daemon owns this one).
+class SharedTachoInput : public TachoInput {
+ public:
+  explicit SharedTachoInput(std::shared_ptr<FakeTachoInput> fake) : fake_(std::move(fake)) {}
+  std::size_t wait_edges(std::chrono::nanoseconds timeout, std::vector<TachoEdge>& out) override {
+    return fake_->wait_edges(timeout, out);
+  }
+  const std::string& name() const override { return fake_->name(); }
+  std::uint64_t errors() const override { return fake_->errors(); }
+
+ private:
+  std::shared_ptr<FakeTachoInput> fake_;
 };
 
 /// Records the line value (true = active = energised) of every set_healthy() call. Starts de-energised,

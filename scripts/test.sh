@@ -20,15 +20,15 @@ echo "== ASan + UBSan build + tests"
 ASAN_OPTIONS=detect_leaks=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
   ctest --test-dir "$here/build-asan" --output-on-failure -j "$jobs"
 
-echo "== ThreadSanitizer build + threading tests (ring buffer, daemon, daemon with GPIO, MQTT sender, HTTP)"
+echo "== ThreadSanitizer build + threading tests (ring buffer, daemon, daemon with GPIO, several streams, MQTT sender, HTTP)"
 # The daemon tests run the TSan-built ridgewatchd/ridgewatch binaries as child processes too, so data
 # races in the acquisition/processing threads of the real daemon are reported (halt_on_error: any
 # report fails the run). No suppressions.
 cmake -S "$here" -B "$here/build-tsan" -G Ninja "${CCACHE_CMAKE_ARGS[@]}" -DRIDGEWATCH_TSAN=ON -DCMAKE_BUILD_TYPE=RelWithDebInfo \
   -DRIDGEWATCH_BUILD_BENCH=OFF >/dev/null
 cmake --build "$here/build-tsan" -j "$jobs" --target ridgewatch ridgewatchd test_ring_buffer test_daemon test_daemon_gpio \
-  test_mqtt test_http
-for t in test_ring_buffer test_daemon test_daemon_gpio test_mqtt test_http; do
+  test_daemon_streams test_mqtt test_http
+for t in test_ring_buffer test_daemon test_daemon_gpio test_daemon_streams test_mqtt test_http; do
   TSAN_OPTIONS=halt_on_error=1:second_deadlock_stack=1 "$here/build-tsan/tests/$t"
 done
 

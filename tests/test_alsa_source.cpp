@@ -6,11 +6,13 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cstdint>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <span>
 #include <stdexcept>
 #include <string>
 #include <vector>
@@ -138,6 +140,26 @@ TEST_F(AlsaSourceTest, GainsDeliverTheWeightedSumOfTheChannels) {
   // One gain per channel or none.
   c.gains = {1.0, 2.0};
   EXPECT_THROW(rd::validate(c), std::invalid_argument);
+}
+
+// Several streams from one device (ridgewatchd streams:): every channel of a period, interleaved.
+TEST_F(AlsaSourceTest, ReadFramesDeliversEveryChannelInterleaved) {
+  std::vector<std::int16_t> raw;
+  for (int i = 0; i < 200; ++i)
+    for (int c = 0; c < 4; ++c) raw.push_back(static_cast<std::int16_t>(1000 * c - 7 * i));
+  const auto local = file_pcm(write_raw(raw));
+  rd::AlsaSource source(config(rd::AlsaSampleFormat::s16_le, 4, 1), local);
+  std::vector<double> got;
+  std::vector<double> block(4 * 64);
+  while (got.size() < raw.size()) {
+    const auto r = source.read_frames(std::span<double>(block.data(), std::min(block.size(), raw.size() - got.size())));
+    ASSERT_GT(r.count, 0u);
+    ASSERT_LE(r.count, 64u);
+    EXPECT_EQ(r.gap_frames_before, 0u);
+    got.insert(got.end(), block.begin(), block.begin() + static_cast<std::ptrdiff_t>(4 * r.count));
+  }
+  for (std::size_t i = 0; i < raw.size(); ++i) ASSERT_EQ(got[i], raw[i] / 32768.0) << "sample " << i;
+  EXPECT_EQ(source.counters().frames_read, 200u);
 }
 
 TEST_F(AlsaSourceTest, ReadsPastTheEndOfTheFileGiveSilence) {

@@ -51,16 +51,7 @@ TEST(DaemonGpio, RelaysDropOutOnTheDampingStepAndTachoGivesShaftSpeed) {
     daemon::GpioLines lines;
     lines.alert = std::make_unique<SharedRelay>(alert);
     lines.danger = std::make_unique<SharedRelay>(danger);
-    struct SharedTacho : drivers::TachoInput {
-      std::shared_ptr<drivers::FakeTachoInput> t;
-      explicit SharedTacho(std::shared_ptr<drivers::FakeTachoInput> x) : t(std::move(x)) {}
-      std::size_t wait_edges(std::chrono::nanoseconds timeout, std::vector<drivers::TachoEdge>& out) override {
-        return t->wait_edges(timeout, out);
-      }
-      const std::string& name() const override { return t->name(); }
-      std::uint64_t errors() const override { return t->errors(); }
-    };
-    lines.tacho = std::make_unique<SharedTacho>(tacho);
+    lines.tacho = std::make_unique<drivers::SharedTachoInput>(tacho);
     return lines;
   };
   daemon::Daemon::clear_requests();
