@@ -7,6 +7,9 @@ CCACHE_CMAKE_ARGS=()
 ccache_setup() {
   if command -v ccache >/dev/null 2>&1; then
     export CCACHE_BASEDIR="${CCACHE_BASEDIR:-$1}"
+    # Entries do not depend on the build folder's absolute path (only the debug info's compilation
+    # directory would differ, which the tests do not read).
+    export CCACHE_NOHASHDIR="${CCACHE_NOHASHDIR:-1}"
     CCACHE_CMAKE_ARGS=(-DCMAKE_CXX_COMPILER_LAUNCHER=ccache -DCMAKE_C_COMPILER_LAUNCHER=ccache)
   fi
 }
