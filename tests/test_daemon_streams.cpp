@@ -24,6 +24,7 @@
 
 #include "app/config_yaml.hpp"
 #include "cli_runner.hpp"
+#include "scratch_dir_test.hpp"
 #include "daemon/daemon.hpp"
 #include "daemon/streams_daemon.hpp"
 #include "daemon/worker_pool.hpp"
@@ -42,20 +43,9 @@ namespace {
 namespace fs = std::filesystem;
 using namespace std::chrono_literals;
 
-class DaemonStreams : public ::testing::Test {
+class DaemonStreams : public ScratchDirTest {
  protected:
-  void SetUp() override {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir_ = fs::temp_directory_path() / ("rw-dstreams-" + std::to_string(::getpid()) + "-" + info->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  void TearDown() override { fs::remove_all(dir_); }
-  std::string write(const std::string& name, const std::string& text) const {
-    const fs::path p = dir_ / name;
-    std::ofstream(p) << text;
-    return p.string();
-  }
+  DaemonStreams() : ScratchDirTest("rw-dstreams") {}
   // Runs ridgewatchd to the end of its input; returns the exit code (stderr in err_).
   int daemon(const std::vector<std::string>& args) {
     std::vector<std::string> argv = {RIDGEWATCHD_PATH};
@@ -65,7 +55,6 @@ class DaemonStreams : public ::testing::Test {
     err_ = slurp(dir_ / "err");
     return code.value_or(-1);
   }
-  fs::path dir_;
   std::string err_;
 };
 

@@ -25,6 +25,7 @@
 #include "app/rig_defaults.hpp"
 #include "app/rig_yaml.hpp"
 #include "cli_runner.hpp"
+#include "scratch_dir_test.hpp"
 #include "drivers/combined_source.hpp"
 // GCC 12 -O2 reports a false -Wstringop-overflow inside indep::write_wav's header bytes (vector insert
 // of a 4-byte tag), as in test_modes_cli.cpp.
@@ -41,21 +42,9 @@ namespace fs = std::filesystem;
 const std::string kPaperRig = std::string(RIDGEWATCH_SOURCE_DIR) + "/config/rigs/paper-rig.yaml";
 
 // One scratch directory per test and process (ctest -j2 and the sanitizer pass run these in parallel).
-class Streams : public ::testing::Test {
+class Streams : public ScratchDirTest {
  protected:
-  void SetUp() override {
-    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-    dir_ = fs::temp_directory_path() / ("rw-streams-" + std::to_string(::getpid()) + "-" + info->name());
-    fs::remove_all(dir_);
-    fs::create_directories(dir_);
-  }
-  void TearDown() override { fs::remove_all(dir_); }
-  std::string write(const std::string& name, const std::string& text) const {
-    const fs::path p = dir_ / name;
-    std::ofstream(p) << text;
-    return p.string();
-  }
-  fs::path dir_;
+  Streams() : ScratchDirTest("rw-streams") {}
 };
 
 std::vector<nlohmann::json> events_of(const CliResult& r) {
