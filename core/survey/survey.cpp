@@ -280,8 +280,8 @@ double typical_impact_height(const std::vector<double>& e, double lag_f) {
 }
 
 // Step 3: impacts are the maxima of e dominating +-0.45 periods (lag_f bins) and reaching a fifth
-// of the median such maximum, or (by_typical_height) of the typical impact's height; their contrast over the envelope median and their times (t.imp,
-// t.impact_times_s, t.contrast).
+// of the median such maximum, or (by_typical_height) of the typical impact's height; their contrast
+// over the envelope median and their times (t.imp, t.impact_times_s, t.contrast).
 void find_impacts(const std::vector<double>& e, double lag_f, bool by_typical_height, BandTrain& t) {
   const std::size_t L = e.size();
   const auto half = static_cast<std::size_t>(std::max(1.0, std::floor(0.45 * lag_f)));
