@@ -556,8 +556,6 @@ void parse_streams(const YamlReader& r, const YAML::Node& root, RidgewatchConfig
   if (!list.IsSequence()) r.fail("streams", "must be a list of streams (- name: ..., channel: ...)");
   if (list.size() == 0) return;
   if (c.source.combine.type != "none") r.fail("source.combine", "not with streams: give each stream its own combine");
-  if (!c.http.listen.empty())
-    r.fail("http.listen", "not available with streams yet (its page and metrics show one stream); leave it out");
   std::vector<std::pair<int, std::string>> lines;  // relay and tacho lines in use, and by whom
   for (const auto& [line, who] : {std::pair{c.gpio.tacho_line, "gpio.tacho_line"}, {c.gpio.alert_line, "gpio.alert_line"},
                                   {c.gpio.danger_line, "gpio.danger_line"}})

@@ -143,8 +143,8 @@ Command make_daemon() {
           },
           {"Signals: TERM/INT finish the impact in progress, flush and exit 0; HUP reloads the configuration "
            "(a bad one is rejected, the old one kept) and reopens the output files (with streams: only reopens "
-           "them; other changes need a restart); USR1 resets a latched alarm. With streams, http.listen is refused "
-           "(exit 2): the page and /metrics show one stream.",
+           "them; other changes need a restart); USR1 resets a latched alarm. With streams, http.listen serves all of "
+           "them: /metrics with a stream label, the page with a link per stream.",
            "Exit codes: 0 ok, 2 bad usage or configuration, 3 input (file/device) failed."}};
 }
 

@@ -2,6 +2,7 @@
 
 #include <httplib.h>
 
+#include <nlohmann/json.hpp>
 #include <thread>
 
 #include "app/args.hpp"
@@ -18,9 +19,29 @@ struct HttpServer::Impl {
   httplib::Server server;
   std::thread thread;
   int port = 0;
+  std::vector<const Telemetry*> telemetries;
+  std::string stream_names;  // /api/streams: a JSON array
+
+  // The stream a request asks for (?stream=NAME), the first without the parameter; null if unknown.
+  const Telemetry* find(const httplib::Request& req) const {
+    if (!req.has_param("stream")) return telemetries.front();
+    const std::string name = req.get_param_value("stream");
+    for (const Telemetry* t : telemetries)
+      if (t->stream() == name) return t;
+    return nullptr;
+  }
 };
 
-HttpServer::HttpServer(const std::string& listen, const Telemetry& telemetry) : impl_(std::make_unique<Impl>()) {
+HttpServer::HttpServer(const std::string& listen, const Telemetry& telemetry)
+    : HttpServer(listen, std::vector<const Telemetry*>{&telemetry}) {}
+
+HttpServer::HttpServer(const std::string& listen, std::vector<const Telemetry*> telemetries)
+    : impl_(std::make_unique<Impl>()) {
+  impl_->telemetries = std::move(telemetries);
+  nlohmann::json names = nlohmann::json::array();
+  for (const Telemetry* t : impl_->telemetries)
+    if (!t->stream().empty()) names.push_back(t->stream());
+  impl_->stream_names = names.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace);
   const auto colon = listen.rfind(':');
   if (colon == std::string::npos) throw app::UsageError("http.listen: must be ADDRESS:PORT (got '" + listen + "')");
   std::string host = listen.substr(0, colon);
@@ -36,12 +57,23 @@ HttpServer::HttpServer(const std::string& listen, const Telemetry& telemetry) : 
     int yes = 1;
     ::setsockopt(sock, SOL_SOCKET, SO_REUSEADDR, &yes, sizeof yes);
   });
-  s.Get("/metrics", [&telemetry](const httplib::Request&, httplib::Response& res) {
-    res.set_content(telemetry.prometheus_text(), "text/plain; version=0.0.4; charset=utf-8");
+  const Impl* impl = impl_.get();
+  s.Get("/metrics", [impl](const httplib::Request&, httplib::Response& res) {
+    res.set_content(prometheus_exposition(impl->telemetries), "text/plain; version=0.0.4; charset=utf-8");
   });
-  s.Get("/api/state", [&telemetry](const httplib::Request&, httplib::Response& res) {
+  s.Get("/api/state", [impl](const httplib::Request& req, httplib::Response& res) {
     res.set_header("Cache-Control", "no-store");
-    res.set_content(telemetry.state_json(), "application/json");
+    const Telemetry* t = impl->find(req);
+    if (t == nullptr) {
+      res.status = 404;
+      res.set_content(nlohmann::json{{"error", "no stream '" + req.get_param_value("stream") + "'"}}.dump(-1, ' ', false, nlohmann::json::error_handler_t::replace),
+                      "application/json");
+      return;
+    }
+    res.set_content(t->state_json(), "application/json");
+  });
+  s.Get("/api/streams", [impl](const httplib::Request&, httplib::Response& res) {
+    res.set_content(impl->stream_names, "application/json");
   });
   s.Get("/healthz", [](const httplib::Request&, httplib::Response& res) { res.set_content("ok\n", "text/plain"); });
   s.Get("/", [](const httplib::Request&, httplib::Response& res) {

@@ -27,31 +27,41 @@ std::string prom_value(double v) {
   return buf;
 }
 
-void header(std::string& out, const char* name, const char* type, const char* help) {
-  out += "# HELP ";
-  out += name;
-  out += ' ';
-  out += help;
-  out += "\n# TYPE ";
-  out += name;
-  out += ' ';
-  out += type;
-  out += '\n';
-}
+// Builds the metric families of one stream: family() starts one, sample() adds a line whose label
+// set begins with the stream's label when there is one.
+class FamilyWriter {
+ public:
+  explicit FamilyWriter(const std::string& stream)
+      : stream_label_(stream.empty() ? std::string() : "stream=\"" + prometheus_escape(stream) + "\"") {}
 
-void sample(std::string& out, const std::string& name_and_labels, double v) {
-  out += name_and_labels;
-  out += ' ';
-  out += prom_value(v);
-  out += '\n';
-}
+  void family(const char* name, const char* type, const char* help) {
+    MetricFamily& f = families_.emplace_back();
+    f.header = std::string("# HELP ") + name + ' ' + help + "\n# TYPE " + name + ' ' + type + '\n';
+  }
+  // `labels`: the sample's own labels without braces (name="value",...), or empty.
+  void sample(std::string_view name, std::string_view labels, double v) { line(name, labels) += prom_value(v) + '\n'; }
+  void sample(std::string_view name, std::string_view labels, std::uint64_t v) {
+    line(name, labels) += std::to_string(v) + '\n';
+  }
+  std::vector<MetricFamily> take() { return std::move(families_); }
 
-void sample(std::string& out, const std::string& name_and_labels, std::uint64_t v) {
-  out += name_and_labels;
-  out += ' ';
-  out += std::to_string(v);
-  out += '\n';
-}
+ private:
+  std::string& line(std::string_view name, std::string_view labels) {
+    std::string& out = families_.back().samples;
+    out += name;
+    if (!stream_label_.empty() || !labels.empty()) {
+      out += '{';
+      out += stream_label_;
+      if (!stream_label_.empty() && !labels.empty()) out += ',';
+      out += labels;
+      out += '}';
+    }
+    out += ' ';
+    return out;
+  }
+  std::string stream_label_;
+  std::vector<MetricFamily> families_;
+};
 
 // A JSON number: the shortest text that reads back as the same value; NaN and infinities (which JSON
 // cannot spell) as null, as nlohmann::json writes them.
@@ -95,8 +105,9 @@ std::string prometheus_escape(std::string_view value) {
   return out;
 }
 
-Telemetry::Telemetry(std::string source_name, std::string version, const trend::TrendConfig& trend, double fs)
-    : source_(std::move(source_name)), version_(std::move(version)), trend_(trend), fs_(fs) {}
+Telemetry::Telemetry(std::string source_name, std::string version, const trend::TrendConfig& trend, double fs,
+                     std::string stream)
+    : source_(std::move(source_name)), version_(std::move(version)), stream_(std::move(stream)), trend_(trend), fs_(fs) {}
 
 void Telemetry::on_events(std::span<const pipeline::ImpactEvent> events, std::string_view last_json) {
   if (events.empty()) return;
@@ -172,67 +183,84 @@ std::uint64_t Telemetry::events_total() const {
 }
 
 std::string Telemetry::prometheus_text() const {
+  const Telemetry* self = this;
+  return prometheus_exposition(std::span<const Telemetry* const>(&self, 1));
+}
+
+std::string prometheus_exposition(std::span<const Telemetry* const> telemetries) {
+  std::vector<std::vector<MetricFamily>> all;
+  all.reserve(telemetries.size());
+  for (const Telemetry* t : telemetries) all.push_back(t->metric_families());
+  std::string out;
+  out.reserve(4096 * all.size());
+  for (std::size_t f = 0; f < all.front().size(); ++f) {
+    out += all.front()[f].header;
+    for (const auto& families : all) out += families[f].samples;
+  }
+  return out;
+}
+
+std::vector<MetricFamily> Telemetry::metric_families() const {
   const MqttCounters m = mqtt_ ? mqtt_() : MqttCounters{};
   std::lock_guard<std::mutex> lock(mutex_);
-  std::string out;
-  out.reserve(4096);
-  header(out, "ridgewatch_build_info", "gauge", "ridgewatchd build and monitored source (always 1).");
-  sample(out, "ridgewatch_build_info{version=\"" + prometheus_escape(version_) + "\",source=\"" + prometheus_escape(source_) + "\"}",
-         std::uint64_t{1});
-  header(out, "ridgewatch_events_total", "counter", "Impact events written, by status.");
+  FamilyWriter w(stream_);
+  const std::uint64_t one = 1;
+  w.family("ridgewatch_build_info", "gauge", "ridgewatchd build and monitored source (always 1).");
+  w.sample("ridgewatch_build_info", "version=\"" + prometheus_escape(version_) + "\",source=\"" + prometheus_escape(source_) + "\"", one);
+  w.family("ridgewatch_events_total", "counter", "Impact events written, by status.");
   for (std::size_t i = 0; i < kStatuses; ++i)
-    sample(out, "ridgewatch_events_total{status=\"" + std::string(pipeline::to_string(static_cast<pipeline::ImpactStatus>(i))) + "\"}",
-           by_status_[i]);
-  header(out, "ridgewatch_impacts_detected_total", "counter", "Impact onsets detected (each yields one event).");
-  sample(out, "ridgewatch_impacts_detected_total", counters_.impacts_detected);
-  header(out, "ridgewatch_samples_total", "counter", "Input samples processed.");
-  sample(out, "ridgewatch_samples_total", counters_.samples);
-  header(out, "ridgewatch_damping_ewma_ratio", "gauge", "EWMA of the damping ratio zeta (exp of the EWMA of ln zeta); NaN while learning.");
-  sample(out, "ridgewatch_damping_ewma_ratio", zeta_of(alarm_.ewma_ln_zeta));
-  header(out, "ridgewatch_damping_baseline_ratio", "gauge", "Baseline damping ratio zeta (learned or configured); NaN while learning.");
-  sample(out, "ridgewatch_damping_baseline_ratio", zeta_of(alarm_.baseline_ln_zeta));
+    w.sample("ridgewatch_events_total",
+             "status=\"" + std::string(pipeline::to_string(static_cast<pipeline::ImpactStatus>(i))) + "\"", by_status_[i]);
+  w.family("ridgewatch_impacts_detected_total", "counter", "Impact onsets detected (each yields one event).");
+  w.sample("ridgewatch_impacts_detected_total", "", counters_.impacts_detected);
+  w.family("ridgewatch_samples_total", "counter", "Input samples processed.");
+  w.sample("ridgewatch_samples_total", "", counters_.samples);
+  w.family("ridgewatch_damping_ewma_ratio", "gauge", "EWMA of the damping ratio zeta (exp of the EWMA of ln zeta); NaN while learning.");
+  w.sample("ridgewatch_damping_ewma_ratio", "", zeta_of(alarm_.ewma_ln_zeta));
+  w.family("ridgewatch_damping_baseline_ratio", "gauge", "Baseline damping ratio zeta (learned or configured); NaN while learning.");
+  w.sample("ridgewatch_damping_baseline_ratio", "", zeta_of(alarm_.baseline_ln_zeta));
   const double s_e = alarm_.baseline_ln_sd * std::sqrt(trend_.ewma_lambda / (2.0 - trend_.ewma_lambda));
-  header(out, "ridgewatch_damping_alert_limit_ratio", "gauge", "Damping ratio at which the EWMA enters alert (upper limit).");
-  sample(out, "ridgewatch_damping_alert_limit_ratio", zeta_of(alarm_.baseline_ln_zeta + trend_.alert_sigma * s_e));
-  header(out, "ridgewatch_damping_danger_limit_ratio", "gauge", "Damping ratio at which the EWMA enters danger (upper limit).");
-  sample(out, "ridgewatch_damping_danger_limit_ratio", zeta_of(alarm_.baseline_ln_zeta + trend_.danger_sigma * s_e));
-  header(out, "ridgewatch_alarm_level", "gauge", "Trend alarm level: 0 learning, 1 normal, 2 alert, 3 danger.");
-  sample(out, "ridgewatch_alarm_level", static_cast<std::uint64_t>(alarm_.level));
-  header(out, "ridgewatch_alarm_transitions_total", "counter", "Alarm level changes.");
-  sample(out, "ridgewatch_alarm_transitions_total", transitions_);
-  header(out, "ridgewatch_cusum", "gauge", "CUSUM of the standardised ln zeta, in baseline standard deviations.");
-  sample(out, "ridgewatch_cusum{direction=\"up\"}", alarm_.cusum_up);
-  sample(out, "ridgewatch_cusum{direction=\"down\"}", alarm_.cusum_down);
-  header(out, "ridgewatch_ring_overrun_samples_total", "counter", "Samples lost because the acquisition ring buffer was full.");
-  sample(out, "ridgewatch_ring_overrun_samples_total", counters_.overruns);
-  header(out, "ridgewatch_input_gaps_total", "counter", "Gaps in the input stream (xruns, device loss, overruns).");
-  sample(out, "ridgewatch_input_gaps_total", counters_.gaps);
-  header(out, "ridgewatch_input_spikes_total", "counter", "Isolated outlier samples removed before detection.");
-  sample(out, "ridgewatch_input_spikes_total", counters_.spikes);
-  header(out, "ridgewatch_event_write_failures_total", "counter", "Events that could not be written to the event log.");
-  sample(out, "ridgewatch_event_write_failures_total", counters_.write_failures);
-  header(out, "ridgewatch_event_latency_seconds", "histogram",
-         "Time from the end of an impact's decay window to its event being written (paced or live input only).");
+  w.family("ridgewatch_damping_alert_limit_ratio", "gauge", "Damping ratio at which the EWMA enters alert (upper limit).");
+  w.sample("ridgewatch_damping_alert_limit_ratio", "", zeta_of(alarm_.baseline_ln_zeta + trend_.alert_sigma * s_e));
+  w.family("ridgewatch_damping_danger_limit_ratio", "gauge", "Damping ratio at which the EWMA enters danger (upper limit).");
+  w.sample("ridgewatch_damping_danger_limit_ratio", "", zeta_of(alarm_.baseline_ln_zeta + trend_.danger_sigma * s_e));
+  w.family("ridgewatch_alarm_level", "gauge", "Trend alarm level: 0 learning, 1 normal, 2 alert, 3 danger.");
+  w.sample("ridgewatch_alarm_level", "", static_cast<std::uint64_t>(alarm_.level));
+  w.family("ridgewatch_alarm_transitions_total", "counter", "Alarm level changes.");
+  w.sample("ridgewatch_alarm_transitions_total", "", transitions_);
+  w.family("ridgewatch_cusum", "gauge", "CUSUM of the standardised ln zeta, in baseline standard deviations.");
+  w.sample("ridgewatch_cusum", "direction=\"up\"", alarm_.cusum_up);
+  w.sample("ridgewatch_cusum", "direction=\"down\"", alarm_.cusum_down);
+  w.family("ridgewatch_ring_overrun_samples_total", "counter", "Samples lost because the acquisition ring buffer was full.");
+  w.sample("ridgewatch_ring_overrun_samples_total", "", counters_.overruns);
+  w.family("ridgewatch_input_gaps_total", "counter", "Gaps in the input stream (xruns, device loss, overruns).");
+  w.sample("ridgewatch_input_gaps_total", "", counters_.gaps);
+  w.family("ridgewatch_input_spikes_total", "counter", "Isolated outlier samples removed before detection.");
+  w.sample("ridgewatch_input_spikes_total", "", counters_.spikes);
+  w.family("ridgewatch_event_write_failures_total", "counter", "Events that could not be written to the event log.");
+  w.sample("ridgewatch_event_write_failures_total", "", counters_.write_failures);
+  w.family("ridgewatch_event_latency_seconds", "histogram",
+           "Time from the end of an impact's decay window to its event being written (paced or live input only).");
   for (std::size_t i = 0; i < kLatencyBuckets.size(); ++i)
-    sample(out, "ridgewatch_event_latency_seconds_bucket{le=\"" + prom_value(kLatencyBuckets[i]) + "\"}", latency_buckets_[i]);
-  sample(out, "ridgewatch_event_latency_seconds_bucket{le=\"+Inf\"}", latency_count_);
-  sample(out, "ridgewatch_event_latency_seconds_sum", latency_sum_);
-  sample(out, "ridgewatch_event_latency_seconds_count", latency_count_);
-  header(out, "ridgewatch_mqtt_enabled", "gauge", "1 when output.mqtt is configured.");
-  sample(out, "ridgewatch_mqtt_enabled", std::uint64_t{m.enabled});
-  header(out, "ridgewatch_mqtt_connected", "gauge", "1 while connected to the MQTT broker.");
-  sample(out, "ridgewatch_mqtt_connected", std::uint64_t{m.connected});
-  header(out, "ridgewatch_mqtt_spool_events", "gauge", "Events in the MQTT spool waiting for the broker's acknowledgement.");
-  sample(out, "ridgewatch_mqtt_spool_events", m.spool_events);
-  header(out, "ridgewatch_mqtt_spool_bytes", "gauge", "Size of the MQTT spool on disk.");
-  sample(out, "ridgewatch_mqtt_spool_bytes", m.spool_bytes);
-  header(out, "ridgewatch_mqtt_spool_dropped_total", "counter", "Events dropped from the full MQTT spool (oldest first) or not spooled (write error).");
-  sample(out, "ridgewatch_mqtt_spool_dropped_total", m.dropped);
-  header(out, "ridgewatch_mqtt_send_failures_total", "counter", "Failed MQTT connection attempts, publishes and lost connections.");
-  sample(out, "ridgewatch_mqtt_send_failures_total", m.send_failures);
-  header(out, "ridgewatch_mqtt_published_total", "counter", "Event messages acknowledged by the broker (QoS 1) or sent (QoS 0).");
-  sample(out, "ridgewatch_mqtt_published_total", m.published);
-  return out;
+    w.sample("ridgewatch_event_latency_seconds_bucket", "le=\"" + prom_value(kLatencyBuckets[i]) + "\"", latency_buckets_[i]);
+  w.sample("ridgewatch_event_latency_seconds_bucket", "le=\"+Inf\"", latency_count_);
+  w.sample("ridgewatch_event_latency_seconds_sum", "", latency_sum_);
+  w.sample("ridgewatch_event_latency_seconds_count", "", latency_count_);
+  w.family("ridgewatch_mqtt_enabled", "gauge", "1 when output.mqtt is configured.");
+  w.sample("ridgewatch_mqtt_enabled", "", std::uint64_t{m.enabled});
+  w.family("ridgewatch_mqtt_connected", "gauge", "1 while connected to the MQTT broker.");
+  w.sample("ridgewatch_mqtt_connected", "", std::uint64_t{m.connected});
+  w.family("ridgewatch_mqtt_spool_events", "gauge", "Events in the MQTT spool waiting for the broker's acknowledgement.");
+  w.sample("ridgewatch_mqtt_spool_events", "", m.spool_events);
+  w.family("ridgewatch_mqtt_spool_bytes", "gauge", "Size of the MQTT spool on disk.");
+  w.sample("ridgewatch_mqtt_spool_bytes", "", m.spool_bytes);
+  w.family("ridgewatch_mqtt_spool_dropped_total", "counter", "Events dropped from the full MQTT spool (oldest first) or not spooled (write error).");
+  w.sample("ridgewatch_mqtt_spool_dropped_total", "", m.dropped);
+  w.family("ridgewatch_mqtt_send_failures_total", "counter", "Failed MQTT connection attempts, publishes and lost connections.");
+  w.sample("ridgewatch_mqtt_send_failures_total", "", m.send_failures);
+  w.family("ridgewatch_mqtt_published_total", "counter", "Event messages acknowledged by the broker (QoS 1) or sent (QoS 0).");
+  w.sample("ridgewatch_mqtt_published_total", "", m.published);
+  return w.take();
 }
 
 std::string Telemetry::state_json() const {
@@ -243,6 +271,7 @@ std::string Telemetry::state_json() const {
   const double b = alarm_.baseline_ln_zeta;
   json j;
   j["source"] = source_;
+  if (!stream_.empty()) j["stream"] = stream_;
   j["version"] = version_;
   j["events"] = events_;
   j["alarm"] = {{"level", trend::to_string(alarm_.level)},

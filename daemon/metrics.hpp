@@ -34,9 +34,18 @@ struct DaemonCounters {
   std::uint64_t samples = 0, impacts_detected = 0, overruns = 0, gaps = 0, spikes = 0, write_failures = 0;
 };
 
+/// One metric family of the exposition text: its "# HELP"/"# TYPE" header and its sample lines.
+struct MetricFamily {
+  std::string header, samples;
+};
+
 class Telemetry {
  public:
-  Telemetry(std::string source_name, std::string version, const trend::TrendConfig& trend, double sample_rate_hz);
+  /// `stream`: the stream's name when the daemon runs several (`streams:`); every sample of
+  /// /metrics then carries a `stream` label and the page's JSON a "stream" member. Empty: one stream,
+  /// no label.
+  Telemetry(std::string source_name, std::string version, const trend::TrendConfig& trend, double sample_rate_hz,
+            std::string stream = {});
 
   // Processing thread.
   /// `last_json`: the newest event's event-log JSON when the caller has it (else it is built here).
@@ -53,7 +62,10 @@ class Telemetry {
   void set_mqtt_source(std::function<MqttCounters()> f) { mqtt_ = std::move(f); }
 
   // Any thread.
-  std::string prometheus_text() const;
+  const std::string& stream() const { return stream_; }
+  std::string prometheus_text() const;  ///< this stream's /metrics
+  /// The metric families in a fixed order (the same for every Telemetry), for merging several streams.
+  std::vector<MetricFamily> metric_families() const;
   std::string state_json() const;   ///< the live page's data
   std::string status_json() const;  ///< the retained MQTT status message ("state":"online")
   std::uint64_t events_total() const;
@@ -74,7 +86,7 @@ class Telemetry {
   static constexpr std::array<double, 12> kLatencyBuckets = {0.001, 0.0025, 0.005, 0.01, 0.025, 0.05,
                                                               0.1,   0.25,   0.5,   1.0,  2.5,   10.0};
 
-  std::string source_, version_;
+  std::string source_, version_, stream_;
   trend::TrendConfig trend_;
   double fs_;
   std::function<MqttCounters()> mqtt_;
@@ -93,6 +105,10 @@ class Telemetry {
   std::deque<Envelope> envelopes_;
   std::chrono::steady_clock::time_point last_envelope_wall_{};  // processing thread only
 };
+
+/// The /metrics text of several streams: each family's header once, then every stream's samples
+/// (the text format wants a family's samples together). All pointers non-null, at least one.
+std::string prometheus_exposition(std::span<const Telemetry* const> telemetries);
 
 /// Prometheus label value escaping (backslash, double quote, newline).
 std::string prometheus_escape(std::string_view value);

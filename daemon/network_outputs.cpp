@@ -6,13 +6,14 @@
 
 namespace ridgewatch::daemon {
 
-NetworkOutputs::NetworkOutputs(const app::RidgewatchConfig& cfg, const std::string& source_name, double fs)
-    : telemetry_(source_name, RIDGEWATCH_VERSION, cfg.pipeline.trend, fs) {}
+NetworkOutputs::NetworkOutputs(const app::RidgewatchConfig& cfg, const std::string& source_name, double fs,
+                               const std::string& stream)
+    : telemetry_(source_name, RIDGEWATCH_VERSION, cfg.pipeline.trend, fs, stream), page_(!cfg.http.listen.empty()) {}
 
 std::unique_ptr<NetworkOutputs> NetworkOutputs::start(const app::RidgewatchConfig& cfg, const std::string& source_name,
-                                                      double fs) {
+                                                      double fs, const std::string& stream, bool own_listener) {
   if (cfg.output.mqtt.host.empty() && cfg.http.listen.empty()) return nullptr;
-  std::unique_ptr<NetworkOutputs> n(new NetworkOutputs(cfg, source_name, fs));
+  std::unique_ptr<NetworkOutputs> n(new NetworkOutputs(cfg, source_name, fs, stream));
   if (!cfg.output.mqtt.host.empty()) {
     n->mqtt_ = std::make_unique<MqttSink>(cfg.output.mqtt, source_name, &n->telemetry_, cfg.logging.status_interval_s);
     const MqttSink* m = n->mqtt_.get();
@@ -22,7 +23,7 @@ std::unique_ptr<NetworkOutputs> NetworkOutputs::start(const app::RidgewatchConfi
                  cfg.output.mqtt.port, m->topic_prefix(), cfg.output.mqtt.qos, cfg.output.mqtt.spool_dir,
                  m->counters().spool_events);
   }
-  if (!cfg.http.listen.empty()) {
+  if (!cfg.http.listen.empty() && own_listener) {
     n->http_ = std::make_unique<HttpServer>(cfg.http.listen, n->telemetry_);
     spdlog::info("HTTP: /metrics and the live page on {} (port {})", cfg.http.listen, n->http_->port());
   }

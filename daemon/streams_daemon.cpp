@@ -77,6 +77,7 @@ class StreamsDaemon {
   std::string config_name() const { return options_.config_path.empty() ? "configuration" : options_.config_path; }
   void open_inputs();
   void make_stream(Stream& s, std::optional<double> full_scale);
+  void open_listener();
   void open_outputs();
   void acquire_replay(Device& d);
   void acquire_alsa(Device& d);
@@ -103,6 +104,7 @@ class StreamsDaemon {
   bool live_ = false;
   std::vector<std::unique_ptr<Stream>> streams_;
   std::vector<std::unique_ptr<Device>> devices_;
+  std::unique_ptr<HttpServer> http_;  // after streams_: stopped before the telemetries it reads go
   GpioLines gpio_;  // the top-level lines: relays on the worst alarm of all streams, tacho
   TachoMeter tacho_;
   std::unique_ptr<LineFile> events_out_, csv_out_;
@@ -193,6 +195,7 @@ void StreamsDaemon::open_inputs() {
     const std::optional<double> fsc = live_ ? full_scale : streams_[i]->replay->info().full_scale;
     make_stream(*streams_[i], fsc);
   }
+  open_listener();
 }
 
 void StreamsDaemon::make_stream(Stream& s, std::optional<double> full_scale) {
@@ -226,17 +229,30 @@ void StreamsDaemon::make_stream(Stream& s, std::optional<double> full_scale) {
     std::filesystem::create_directories(c.dir, ec);
     s.captures = std::make_unique<CaptureStore>(c);
   }
-  if (!cfg_.output.mqtt.host.empty()) {
-    // MQTT per stream: its own topics <prefix>/<stream>/..., client and spool, so `seq` counts per stream.
+  if (!cfg_.output.mqtt.host.empty() || !cfg_.http.listen.empty()) {
+    // MQTT per stream: its own topics <prefix>/<stream>/..., client and spool, so `seq` counts per
+    // stream. The stream's telemetry feeds the one HTTP listener of all streams (open_listener).
     app::RidgewatchConfig c = cfg_;
     c.pipeline = p;
-    const std::string base_name = !cfg_.output.source_name.empty() ? cfg_.output.source_name : s.source;
-    auto& m = c.output.mqtt;
-    m.topic_prefix = (m.topic_prefix.empty() ? default_topic_prefix(base_name) : m.topic_prefix) + "/" + s.cfg->name;
-    m.client_id = (m.client_id.empty() ? default_client_id(base_name) : m.client_id) + "-" + s.cfg->name;
-    m.spool_dir = (std::filesystem::path(m.spool_dir) / s.cfg->name).string();
-    s.net = NetworkOutputs::start(c, s.source, fs_);
+    if (!c.output.mqtt.host.empty()) {
+      const std::string base_name = !cfg_.output.source_name.empty() ? cfg_.output.source_name : s.source;
+      auto& m = c.output.mqtt;
+      m.topic_prefix = (m.topic_prefix.empty() ? default_topic_prefix(base_name) : m.topic_prefix) + "/" + s.cfg->name;
+      m.client_id = (m.client_id.empty() ? default_client_id(base_name) : m.client_id) + "-" + s.cfg->name;
+      m.spool_dir = (std::filesystem::path(m.spool_dir) / s.cfg->name).string();
+    }
+    s.net = NetworkOutputs::start(c, s.source, fs_, s.cfg->name, false);
   }
+}
+
+// http.listen: one listener for every stream's /metrics (a `stream` label) and page data.
+void StreamsDaemon::open_listener() {
+  if (cfg_.http.listen.empty()) return;
+  std::vector<const Telemetry*> telemetries;
+  for (const auto& s : streams_) telemetries.push_back(&s->net->telemetry());
+  http_ = std::make_unique<HttpServer>(cfg_.http.listen, std::move(telemetries));
+  spdlog::info("HTTP: /metrics and the live page of {} streams on {} (port {})", streams_.size(), cfg_.http.listen,
+               http_->port());
 }
 
 void StreamsDaemon::open_outputs() {
@@ -654,7 +670,8 @@ int StreamsDaemon::finish() {
   events_out_->sync();
   if (csv_out_) csv_out_->sync();
   poll_network(true);
-  if (options_.before_network_stop) options_.before_network_stop(0);
+  if (options_.before_network_stop) options_.before_network_stop(http_ ? http_->port() : 0);
+  http_.reset();
   for (auto& s : streams_)
     if (s->net) s->net->stop(std::chrono::seconds(3));
   spdlog::info("stopped: {}", status_text());

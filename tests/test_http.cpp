@@ -70,6 +70,13 @@ std::map<std::string, double> parse_samples(const std::string& text) {
   return out;
 }
 
+// Headless Chromium with a throw-away profile in `dir`, a phone-sized window.
+std::string chromium_command(const fs::path& dir) {
+  return "chromium --headless --no-sandbox --disable-gpu --no-first-run --disable-extensions "
+         "--disable-background-networking --disable-sync --user-data-dir=" + (dir / "profile").string() +
+         " --window-size=412,1400 ";
+}
+
 int promtool_check(const fs::path& file, std::string* output) {
   const auto out = file.string() + ".promtool";
   const int rc = std::system(("promtool check metrics < " + file.string() + " > " + out + " 2>&1").c_str());
@@ -167,6 +174,112 @@ TEST(Metrics, PromtoolAcceptsThemAndCountersEqualTheEventLog) {
   EXPECT_EQ(page.find("src=\"http"), std::string::npos);  // nothing loaded from elsewhere
 }
 
+// Several streams, one listener: every /metrics sample carries its stream's label, each family's
+// header appears once (promtool), each stream's counters equal its own events in the log, and the
+// page data and the page (in headless Chromium) show the stream asked for.
+TEST(Metrics, SeveralStreamsShareOneListenerWithAStreamLabel) {
+  if (std::system("command -v promtool >/dev/null 2>&1") != 0) GTEST_SKIP() << "promtool (package prometheus) not installed";
+  const auto dir = temp_dir("http-streams");
+  // Three independent rigs (no code shared with core/model) at different impact rates, so that the
+  // streams' counts differ and a mix-up shows.
+  const std::vector<std::string> names = {"a", "b", "c"};
+  const double fs = 25600.0, duration_s = 3.0;
+  const auto n = static_cast<std::size_t>(fs * duration_s);
+  std::vector<double> frames(names.size() * n);
+  for (std::size_t ch = 0; ch < names.size(); ++ch) {
+    indep::RigSpec r;
+    r.fs_hz = fs;
+    r.duration_s = duration_s;
+    r.rev_hz = 15.0 + 10.0 * static_cast<double>(ch);
+    r.response.amplitude = 0.3;
+    r.noise_sd = 0.001;
+    r.seed = 40 + ch;
+    const auto rec = indep::make_rig_record(r);
+    for (std::size_t i = 0; i < n; ++i) frames[names.size() * i + ch] = rec.x[i];
+  }
+  const std::string wav = (dir / "three.wav").string();
+  indep::write_wav(wav, frames, fs, static_cast<int>(names.size()), indep::SampleFormat::pcm24);
+  std::string yaml = "streams:\n";
+  for (std::size_t ch = 0; ch < names.size(); ++ch)
+    yaml += "  - name: " + names[ch] + "\n    channel: " + std::to_string(ch) + "\n";
+  ridgewatch::daemon::DaemonOptions options;
+  options.config = ridgewatch::app::parse_config(yaml, "streams.yaml");
+  options.config.source.replay.path = wav;
+  options.config.source.replay.speed = 0.0;
+  options.config.output.events = (dir / "ev.jsonl").string();
+  options.config.http.listen = "127.0.0.1:0";  // any free port (the configuration file wants a fixed one)
+  std::string metrics, list, state_b, state_default, dom;
+  int unknown_status = 0;
+  const bool browser = std::system("command -v chromium >/dev/null 2>&1") == 0;
+  options.before_network_stop = [&](int port) {
+    metrics = http_get(port, "/metrics");
+    list = http_get(port, "/api/streams");
+    state_b = http_get(port, "/api/state?stream=b");
+    state_default = http_get(port, "/api/state");
+    http_get(port, "/api/state?stream=zz", &unknown_status);
+    if (!browser) return;
+    const std::string dom_file = (dir / "dom.html").string();
+    std::system((chromium_command(dir) + "--virtual-time-budget=2000 --dump-dom 'http://127.0.0.1:" + std::to_string(port) +
+                 "/?stream=b' > " + dom_file + " 2>/dev/null").c_str());
+    dom = ridgewatch::test::slurp(dom_file);
+  };
+  ridgewatch::daemon::Daemon::clear_requests();
+  ridgewatch::daemon::Daemon daemon(options);
+  ASSERT_EQ(daemon.run(), 0);
+
+  ASSERT_FALSE(metrics.empty());
+  std::ofstream(dir / "metrics.txt") << metrics;
+  std::string lint;
+  EXPECT_EQ(promtool_check(dir / "metrics.txt", &lint), 0) << lint << metrics;
+  EXPECT_TRUE(lint.empty()) << lint;
+  // One header per family, however many streams.
+  std::size_t helps = 0;
+  for (std::size_t at = 0; (at = metrics.find("# HELP ridgewatch_events_total ", at)) != std::string::npos; ++at) ++helps;
+  EXPECT_EQ(helps, 1u);
+
+  std::map<std::string, std::map<std::string, double>> logged;  // stream -> status -> events
+  for (const auto& e : read_jsonl(dir / "ev.jsonl")) logged[e["stream"].get<std::string>()][e["status"].get<std::string>()] += 1;
+  ASSERT_EQ(logged.size(), names.size());
+  const auto m = parse_samples(metrics);
+  for (const auto& [key, v] : m) EXPECT_NE(key.find("{stream=\""), std::string::npos) << "sample without a stream label: " << key;
+  std::map<std::string, double> totals;
+  for (const auto& name : names) {
+    const std::string label = "stream=\"" + name + "\"";
+    double events = 0;
+    for (const auto& [status, count] : logged[name]) {
+      EXPECT_EQ(m.at("ridgewatch_events_total{" + label + ",status=\"" + status + "\"}"), count) << name << " " << status;
+      events += count;
+    }
+    double exposed = 0;
+    for (const auto& [key, v] : m)
+      if (key.rfind("ridgewatch_events_total{" + label + ",", 0) == 0) exposed += v;
+    EXPECT_EQ(exposed, events) << name;
+    EXPECT_EQ(m.at("ridgewatch_impacts_detected_total{" + label + "}"), events) << name;
+    EXPECT_EQ(m.at("ridgewatch_samples_total{" + label + "}"), static_cast<double>(n)) << name;
+    totals[name] = events;
+  }
+  // 15, 25 and 35 impacts per second for 3 s: the counts must differ, or a mix-up would not show.
+  EXPECT_LT(totals["a"], totals["b"]);
+  EXPECT_LT(totals["b"], totals["c"]);
+
+  EXPECT_EQ(json::parse(list), json(names));
+  const json b = json::parse(state_b);
+  EXPECT_EQ(b["stream"], "b");
+  EXPECT_EQ(b["events"], totals["b"]);
+  EXPECT_EQ(json::parse(state_default)["stream"], "a");  // the first stream without ?stream=
+  EXPECT_EQ(unknown_status, 404);
+  if (!browser) GTEST_SKIP() << "chromium not installed: the page itself not checked";
+  std::smatch match;
+  ASSERT_TRUE(std::regex_search(dom, match, std::regex("data-stream=\"([a-z]+)\""))) << dom.substr(0, 2000);
+  EXPECT_EQ(match[1].str(), "b");
+  ASSERT_TRUE(std::regex_search(dom, match, std::regex("data-events=\"([0-9]+)\"")));
+  EXPECT_EQ(std::stod(match[1]), totals["b"]);
+  // One link per stream, the shown one marked.
+  EXPECT_NE(dom.find("<a href=\"?stream=a\">a</a>"), std::string::npos) << dom.substr(0, 3000);
+  EXPECT_NE(dom.find("<a href=\"?stream=b\" class=\"here\">b</a>"), std::string::npos);
+  EXPECT_NE(dom.find("<a href=\"?stream=c\">c</a>"), std::string::npos);
+}
+
 // Label values with quotes, backslashes and newlines are escaped as the text format requires.
 TEST(Metrics, LabelValuesAreEscaped) {
   if (std::system("command -v promtool >/dev/null 2>&1") != 0) GTEST_SKIP() << "promtool (package prometheus) not installed";
@@ -215,9 +328,7 @@ TEST(LivePage, HeadlessChromiumShowsEventsAndAlarmAndUpdates) {
                  {}, (dir / "o").string(), (dir / "e").string());
   ASSERT_TRUE(wait_for([&] { return read_jsonl(dir / "ev.jsonl").size() >= 30; }, 20s)) << ridgewatch::test::slurp(dir / "e");
   const std::string url = "http://127.0.0.1:" + std::to_string(port) + "/";
-  const std::string chrome = "chromium --headless --no-sandbox --disable-gpu --no-first-run --disable-extensions "
-                             "--disable-background-networking --disable-sync --user-data-dir=" + (dir / "profile").string() +
-                             " --window-size=412,1400 ";
+  const std::string chrome = chromium_command(dir);
   // Virtual time runs the page's 1 s polling timer; fetches to the daemon take real time, during
   // which the daemon keeps replaying, so later polls show more events.
   const std::string dom_file = (dir / "dom.html").string();
