@@ -84,6 +84,14 @@ int promtool_check(const fs::path& file, std::string* output) {
   return WIFEXITED(rc) ? WEXITSTATUS(rc) : -1;
 }
 
+// The exposition text passes `promtool check metrics` without lint warnings (kept in dir/metrics.txt).
+void expect_promtool_clean(const fs::path& dir, const std::string& metrics) {
+  std::ofstream(dir / "metrics.txt") << metrics;
+  std::string lint;
+  EXPECT_EQ(promtool_check(dir / "metrics.txt", &lint), 0) << lint << metrics;
+  EXPECT_TRUE(lint.empty()) << lint;
+}
+
 }  // namespace
 
 // Acceptance: /metrics passes promtool, and its counters equal the events written to the log.
@@ -110,10 +118,7 @@ TEST(Metrics, PromtoolAcceptsThemAndCountersEqualTheEventLog) {
   ASSERT_EQ(daemon.run(), 0);
 
   ASSERT_FALSE(metrics.empty());
-  std::ofstream(dir / "metrics.txt") << metrics;
-  std::string lint;
-  EXPECT_EQ(promtool_check(dir / "metrics.txt", &lint), 0) << lint << metrics;
-  EXPECT_TRUE(lint.empty()) << lint;  // no lint warnings either
+  expect_promtool_clean(dir, metrics);
 
   const auto events = read_jsonl(dir / "ev.jsonl");
   ASSERT_GT(events.size(), 190u);  // 8 s at 25 impacts/s
@@ -228,10 +233,7 @@ TEST(Metrics, SeveralStreamsShareOneListenerWithAStreamLabel) {
   ASSERT_EQ(daemon.run(), 0);
 
   ASSERT_FALSE(metrics.empty());
-  std::ofstream(dir / "metrics.txt") << metrics;
-  std::string lint;
-  EXPECT_EQ(promtool_check(dir / "metrics.txt", &lint), 0) << lint << metrics;
-  EXPECT_TRUE(lint.empty()) << lint;
+  expect_promtool_clean(dir, metrics);
   // One header per family, however many streams.
   std::size_t helps = 0;
   for (std::size_t at = 0; (at = metrics.find("# HELP ridgewatch_events_total ", at)) != std::string::npos; ++at) ++helps;
