@@ -159,6 +159,7 @@ void MeshIntegrator::use_grid(double t0_s, double h_s, double theta0_rad, double
 }
 
 MeshTerms MeshIntegrator::terms_at(double t_s, double th) const {
+  if (model_.use_phasors_ && !model_.mesh_forcing_) return {};  // as MeshModel::terms, without the call
   if (!grid_.empty()) {
     // Off-grid times (pulse edges, located events) fall back to the model's evaluation.
     // The nearest grid index by truncation of u + 1/2 (u > -1/2; as std::round wherever |u - j| <
@@ -219,7 +220,7 @@ double MeshIntegrator::mesh_coordinate_force_n(double t_s, const State& s, bool 
   return mesh_force(t_s, s, include_stick_effects, kTwoPi * shaft_speed_hz(t_s), impact_force_n(t_s));
 }
 
-double MeshIntegrator::mesh_force(double t_s, const State& s, bool include_stick_effects, double theta_dot,
+[[gnu::always_inline]] inline double MeshIntegrator::mesh_force(double t_s, const State& s, bool include_stick_effects, double theta_dot,
                                   double impact_force) const {
   const auto& effects = model_.effects_;
   const double mesh_angle_rad = mesh_angle(s);
@@ -248,7 +249,7 @@ double MeshIntegrator::mesh_force(double t_s, const State& s, bool include_stick
   return force;
 }
 
-MeshIntegrator::State MeshIntegrator::derivative(double t_s, const State& s) const {
+[[gnu::always_inline]] inline MeshIntegrator::State MeshIntegrator::derivative(double t_s, const State& s) const {
   // The pulse and the shaft speed once for both modes and the angle.
   const double impact_force = impact_force_n(t_s);
   const double theta_dot = kTwoPi * shaft_speed_hz(t_s);
@@ -335,7 +336,7 @@ std::size_t MeshIntegrator::single_switching_effect() const {
   return found;
 }
 
-double MeshIntegrator::event_fraction(double t_s, double step, const State& s) const {
+double MeshIntegrator::event_fraction(double t_s, double step, const State& s, const State& end) const {
   // The step fraction just past the regime change: the smallest multiple of 2^-30 at which the step
   // ends in the new regime (<= 5e-15 s at 200 kHz). Bisection finds it in 30 trial steps. With one
   // switching effect, its switching function g (smooth in the fraction within a regime) gives
@@ -350,7 +351,7 @@ double MeshIntegrator::event_fraction(double t_s, double step, const State& s) c
     const Effect& eff = *model_.effects_[i];
     auto g_at = [&](double f) {
       const double tf = t_s + f * step;
-      return eff.switching_function(mesh_state(tf, f == 0.0 ? s : rk4(t_s, s, f * step)));
+      return eff.switching_function(mesh_state(tf, f == 0.0 ? s : f == 1.0 ? end : rk4(t_s, s, f * step)));
     };
     double g_lo = g_at(0.0), g_hi = g_at(1.0);
     int side = 0;
@@ -387,9 +388,9 @@ double MeshIntegrator::event_fraction(double t_s, double step, const State& s) c
   return hi;
 }
 
-void MeshIntegrator::locate_event(double& t_s, double step, State& s, std::uint64_t& events) {
+void MeshIntegrator::locate_event(double& t_s, double step, State& s, const State& end, std::uint64_t& events) {
   // The step to just past the regime change, then the new regimes.
-  const double hi = event_fraction(t_s, step, s);
+  const double hi = event_fraction(t_s, step, s, end);
   const bool was_moving = !stuck_;
   const int v_sign_before = sign_of(s[kV]);
   s = rk4(t_s, s, hi * step);
@@ -417,7 +418,7 @@ void MeshIntegrator::advance(double& t_s, State& s, double h_s, std::uint64_t& e
       t_s = (step == t_end - t_s) ? t_end : t_s + step;
       continue;
     }
-    locate_event(t_s, step, s, events);
+    locate_event(t_s, step, s, next, events);
   }
   t_s = t_end;
 }

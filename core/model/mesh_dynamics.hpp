@@ -162,8 +162,9 @@ class MeshIntegrator {
   bool regime_violated(double t_s, const State& s) const;
   void update_regimes(double t_s, State& s, bool velocity_reversal);
   void check_release(double t_s, const State& s);
-  void locate_event(double& t_s, double step, State& s, std::uint64_t& events);
-  double event_fraction(double t_s, double step, const State& s) const;
+  /// `end`: the state after the whole step (in the regimes frozen at its start).
+  void locate_event(double& t_s, double step, State& s, const State& end, std::uint64_t& events);
+  double event_fraction(double t_s, double step, const State& s, const State& end) const;
   std::size_t single_switching_effect() const;
 
   const MeshModel& model_;
