@@ -7,6 +7,8 @@
 #include <complex>
 #include <numbers>
 
+#include "core/model/effect_registry.hpp"
+#include "core/model/mesh_dynamics.hpp"
 #include "core/model/simulator.hpp"
 
 namespace rm = ridgewatch::model;
@@ -155,6 +157,36 @@ TEST(Effects, CoulombFrictionDecaysLinearlyAndSticks) {
     EXPECT_EQ(r.output[i], r.output[tail]);
   }
   EXPECT_GT(r.located_events, 2 * peaks.size() - 2);  // every velocity reversal was located
+}
+
+TEST(Effects, VelocityReversalsLocatedAsByBisection) {
+  // With one switching effect the integrator picks its trial steps by regula falsi on q̇; with two it
+  // bisects. A contact-loss effect whose teeth never separate (|x| stays far below the static
+  // deflection) adds a second switching effect without changing any force, so both runs must give
+  // the same located fractions and hence the same state, bit for bit, after every reversal.
+  rm::RigParameters rig;
+  rig.damping_ratio = 0.0;
+  auto make = [&](const std::string& name, const rm::EffectValues& v) { return rm::find_effect(name)->create(v, rig); };
+  std::vector<std::unique_ptr<rm::Effect>> one, two;
+  one.push_back(make("coulomb_friction", {{"force_n", 50.0}}));
+  two.push_back(make("coulomb_friction", {{"force_n", 50.0}}));
+  two.push_back(make("contact_loss", {{"loss_fraction", 1.0}}));
+  const rm::MeshModel m1(rig, one, std::vector<rm::EffectKind>(1, rm::EffectKind::kDynamics), rig.impact_duration_s, true);
+  const rm::MeshModel m2(rig, two, std::vector<rm::EffectKind>(2, rm::EffectKind::kDynamics), rig.impact_duration_s, true);
+  rm::MeshIntegrator a(m1, {}, 0.0, 0.0, {}), b(m2, {}, 0.0, 0.0, {});
+  // 1 µm initial amplitude at f0 ≈ 860 Hz (q_s is tens of µm): many reversals, then stick.
+  rm::MeshIntegrator::State sa{0.0, 0.005, 0.0, 0.0, 0.0}, sb = sa;
+  a.initialise(0.0, sa);
+  b.initialise(0.0, sb);
+  std::uint64_t ea = 0, eb = 0;
+  double ta = 0.0, tb = 0.0;
+  for (int k = 0; k < 2000; ++k) {
+    a.advance(ta, sa, 1.0 / 51200.0, ea);
+    b.advance(tb, sb, 1.0 / 51200.0, eb);
+    ASSERT_EQ(sa, sb) << "step " << k;
+  }
+  EXPECT_GE(ea, 5u);  // reversals were located (8 before the mesh sticks)
+  EXPECT_EQ(ea, eb);
 }
 
 TEST(Effects, QuadraticDampingHasAmplitudeProportionalDecay) {

@@ -162,9 +162,15 @@ ModelState ModelFitter::carry(const WindowSimulator& sim, std::size_t w, const C
 void ModelFitter::simulate_window(const WindowSimulator& sim, std::size_t w, const FitParams& p, const Chain& c,
                                   std::vector<double>& out, WindowSimulator::End& end,
                                   std::vector<TraceSample>* trace) const {
+  simulate_window(sim, w, p, carry(sim, w, c), out, end, trace);
+}
+
+void ModelFitter::simulate_window(const WindowSimulator& sim, std::size_t w, const FitParams& p,
+                                  const ModelState& carried, std::vector<double>& out, WindowSimulator::End& end,
+                                  std::vector<TraceSample>* trace) const {
   const auto& win = seg_.windows[w];
   out.resize(win.end - win.begin);
-  sim.simulate(win.begin, out.size(), impact(w, p), carry(sim, w, c), out.data(), end, trace);
+  sim.simulate(win.begin, out.size(), impact(w, p), carried, out.data(), end, trace);
 }
 
 ModelFitter::Linearisation ModelFitter::linearise(const FitResult& fit) const {
@@ -180,14 +186,15 @@ ModelFitter::Linearisation ModelFitter::linearise(const FitResult& fit) const {
   std::vector<double> m;
   WindowSimulator::End end;
   for (std::size_t w = 0; w < nw; ++w) {
-    simulate_window(sim, w, fit.params, c, c.out[w], c.end[w], &lin.states[w]);
+    const ModelState carried = carry(sim, w, c);
+    simulate_window(sim, w, fit.params, carried, c.out[w], c.end[w], &lin.states[w]);
     // The steps of FitProblem::df: 1e-6 in ln F, 1e-4 samples of onset.
     for (int which = 0; which < 2; ++which) {
       FitParams q = fit.params;
       const double h = which == 0 ? 1e-6 : 1e-4;
       if (which == 0) q.ln_force[w] += h;
       else q.shift[w] += h;
-      simulate_window(sim, w, q, c, m, end);
+      simulate_window(sim, w, q, carried, m, end);
       auto& d = which == 0 ? lin.d_ln_force[w] : lin.d_shift[w];
       d.resize(m.size());
       for (std::size_t i = 0; i < m.size(); ++i) d[i] = (m[i] - c.out[w][i]) / h;
@@ -382,6 +389,7 @@ struct FitProblem {
     std::vector<double> m, m2;
     std::vector<double> r;
     for (std::size_t w : free_windows) {
+      const ModelState carried = fitter->carry(sim, w, c);
       for (int which = 0; which < 2; ++which, ++col) {
         FitParams q = p;
         const double h = which == 0 ? 1e-6 : 1e-4;
@@ -390,7 +398,7 @@ struct FitProblem {
         ModelFitter::Chain cq;
         cq.end = c.end;
         WindowSimulator::End end;
-        fitter->simulate_window(sim, w, q, cq, m, end);
+        fitter->simulate_window(sim, w, q, carried, m, end);
         if (row_offset[w] != static_cast<std::size_t>(-1)) {
           r.resize(m.size());
           fill_rows(w, m, r.data());
@@ -429,7 +437,7 @@ struct WindowProblem {
 
   const ModelFitter* fitter = nullptr;
   const WindowSimulator* sim = nullptr;
-  const ModelFitter::Chain* chain = nullptr;
+  ModelState carried;  // into window w from the chain (fixed while its nuisances are fitted)
   FitParams* p = nullptr;
   std::size_t w = 0;
   Eigen::Index rows = 0;
@@ -443,7 +451,7 @@ struct WindowProblem {
     p->ln_force[w] = ln_force;
     p->shift[w] = shift;
     WindowSimulator::End end;
-    fitter->simulate_window(*sim, w, *p, *chain, m, end);
+    fitter->simulate_window(*sim, w, *p, carried, m, end);
     p->ln_force[w] = keep_f;
     p->shift[w] = keep_s;
     const auto& win = fitter->segmentation().windows[w];
@@ -495,8 +503,8 @@ double chi2_of(const FitProblem& prob, const FitParams& p) {
 
 }  // namespace
 
-bool ModelFitter::onset_grid(const WindowSimulator& sim, std::size_t w, const FitParams& p, const Chain& c,
-                             double& ln_force, double& shift) const {
+bool ModelFitter::onset_grid(const WindowSimulator& sim, std::size_t w, const FitParams& p,
+                             const ModelState& carried, double& ln_force, double& shift) const {
   // As initialise_nuisances, for one window at the given physics and carried tail: onset grid -0.6 ..
   // +1.5 ms in 0.1 ms steps, force by projection. Returns false if no grid point projects positively.
   const auto& win = seg_.windows[w];
@@ -507,7 +515,7 @@ bool ModelFitter::onset_grid(const WindowSimulator& sim, std::size_t w, const Fi
     q.ln_force[w] = 0.0;
     q.shift[w] = k * 0.0001 * seg_.sample_rate_hz;
     WindowSimulator::End end;
-    simulate_window(sim, w, q, c, m, end);
+    simulate_window(sim, w, q, carried, m, end);
     double sy = 0.0, ss = 0.0;
     for (std::size_t i = 0; i < m.size(); ++i) {
       sy += seg_.weight[win.begin + i] * y_[win.begin + i] * m[i];
@@ -573,9 +581,9 @@ void ModelFitter::restart_bad_windows(FitProblem& train, FitParams& p, int budge
     const Chain c = evaluate(L, p);
     bool changed = false;
     std::vector<double> m;
-    auto window_power = [&](const FitParams& q, std::size_t w) {
+    auto window_power = [&](const FitParams& q, std::size_t w, const ModelState& carried) {
       WindowSimulator::End end;
-      simulate_window(sim, w, q, c, m, end);
+      simulate_window(sim, w, q, carried, m, end);
       const auto& win = seg_.windows[w];
       double r2 = 0.0, n = 0.0;
       for (std::size_t i = 0; i < m.size(); ++i) {
@@ -586,11 +594,12 @@ void ModelFitter::restart_bad_windows(FitProblem& train, FitParams& p, int budge
       return r2 / std::max(1.0, n) / (seg_.noise_sd * seg_.noise_sd);
     };
     for (std::size_t w : train.free_windows) {
-      const double power = window_power(p, w);
+      const ModelState carried = carry(sim, w, c);
+      const double power = window_power(p, w, carried);
       if (power <= 2.0) continue;
       FitParams q = p;
-      if (!onset_grid(sim, w, p, c, q.ln_force[w], q.shift[w])) continue;
-      if (window_power(q, w) < power) {
+      if (!onset_grid(sim, w, p, carried, q.ln_force[w], q.shift[w])) continue;
+      if (window_power(q, w, carried) < power) {
         p.ln_force[w] = q.ln_force[w];
         p.shift[w] = q.shift[w];
         changed = true;
@@ -673,7 +682,7 @@ void ModelFitter::heldout_refit(const std::vector<GlobalParameter>& L, FitParams
       WindowProblem wp;
       wp.fitter = this;
       wp.sim = &sim;
-      wp.chain = &chain;
+      wp.carried = carry(sim, w, chain);
       wp.p = &p;
       wp.w = w;
       wp.rows = static_cast<Eigen::Index>(seg_.windows[w].end - seg_.windows[w].begin);
@@ -697,11 +706,11 @@ void ModelFitter::heldout_refit(const std::vector<GlobalParameter>& L, FitParams
       // came from a fit at other physics): restart it from the onset grid at the fitted physics.
       if (power > 2.0) {
         Eigen::VectorXd g(2);
-        if (onset_grid(sim, w, p, chain, g[0], g[1]) && solve(g) < power) x = g;
+        if (onset_grid(sim, w, p, wp.carried, g[0], g[1]) && solve(g) < power) x = g;
       }
       p.ln_force[w] = x[0];
       p.shift[w] = x[1];
-      simulate_window(sim, w, p, chain, chain.out[w], chain.end[w]);
+      simulate_window(sim, w, p, wp.carried, chain.out[w], chain.end[w]);
     }
   }
 }

@@ -134,6 +134,12 @@ class ModelFitter {
   void simulate_window(const WindowSimulator& sim, std::size_t w, const FitParams& p, const Chain& c,
                        std::vector<double>& out, WindowSimulator::End& end,
                        std::vector<TraceSample>* trace = nullptr) const;
+  /// The same from the transient `carried` into window w (carry(sim, w, c)): callers that simulate
+  /// one window many times over the same chain compute it once (with dry friction it is an
+  /// integration of the whole gap).
+  void simulate_window(const WindowSimulator& sim, std::size_t w, const FitParams& p, const ModelState& carried,
+                       std::vector<double>& out, WindowSimulator::End& end,
+                       std::vector<TraceSample>* trace = nullptr) const;
   void initialise_nuisances(FitParams& p, const std::vector<GlobalParameter>& layout) const;
   // The steps of fit(): start values (returns whether the mesh phase came from `warm`), restarts of
   // training windows in a wrong onset basin, training statistics and parameter estimates, the
@@ -145,8 +151,8 @@ class ModelFitter {
   void heldout_refit(const std::vector<GlobalParameter>& layout, FitParams& p) const;
   void heldout_statistics(const FitParams& p, FitResult& res) const;
   /// Best onset shift (grid) and force (projection) of window w at the given physics and tail.
-  bool onset_grid(const WindowSimulator& sim, std::size_t w, const FitParams& p, const Chain& c, double& ln_force,
-                  double& shift) const;
+  bool onset_grid(const WindowSimulator& sim, std::size_t w, const FitParams& p, const ModelState& carried,
+                  double& ln_force, double& shift) const;
 
   std::span<const double> y_;
   Segmentation seg_;

@@ -28,6 +28,8 @@ MeshModel::MeshModel(const RigParameters& rig, const std::vector<std::unique_ptr
     effects_.push_back(e);
     if (i < kinds.size() && kinds[i] == EffectKind::kKinematics) kinematic_.push_back(i);
     if (e->has_switching()) switching_.push_back(i);
+    // A regime stays +1 unless the effect switches: a factor of exactly 1 there leaves the product as it is.
+    if (e->has_switching() || e->mesh_force_factor(1) != 1.0) factor_effects_.push_back(i);
     stick_limit_n_ += e->stick_force_limit_n();
     if (auto m = e->auxiliary_mode()) {
       has_aux_ = true;
@@ -157,12 +159,16 @@ void MeshIntegrator::use_grid(double t0_s, double h_s, double theta0_rad, double
 }
 
 MeshTerms MeshIntegrator::terms_at(double t_s, double th) const {
+  if (model_.use_phasors_ && !model_.mesh_forcing_) return {};  // as MeshModel::terms, without the call
   if (!grid_.empty()) {
     // Off-grid times (pulse edges, located events) fall back to the model's evaluation.
+    // The nearest grid index by truncation of u + 1/2 (u > -1/2; as std::round wherever |u - j| <
+    // 1e-6, without its library call).
     const double u = (t_s - grid_t0_) * grid_inv_half_h_;
-    const double j = std::round(u);
-    if (std::abs(u - j) < 1e-6 && j >= 0.0 && j < static_cast<double>(grid_.size()))
-      return grid_[static_cast<std::size_t>(j)];
+    if (u > -0.5 && u < static_cast<double>(grid_.size())) {
+      const auto j = static_cast<std::size_t>(u + 0.5);
+      if (j < grid_.size() && std::abs(u - static_cast<double>(j)) < 1e-6) return grid_[j];
+    }
   }
   return model_.terms(th);
 }
@@ -211,12 +217,16 @@ MeshState MeshIntegrator::mesh_state(double t_s, const State& s) const {
 }
 
 double MeshIntegrator::mesh_coordinate_force_n(double t_s, const State& s, bool include_stick_effects) const {
+  return mesh_force(t_s, s, include_stick_effects, kTwoPi * shaft_speed_hz(t_s), impact_force_n(t_s));
+}
+
+[[gnu::always_inline]] inline double MeshIntegrator::mesh_force(double t_s, const State& s, bool include_stick_effects, double theta_dot,
+                                  double impact_force) const {
   const auto& effects = model_.effects_;
-  const double theta_dot = kTwoPi * shaft_speed_hz(t_s);
   const double mesh_angle_rad = mesh_angle(s);
   const MeshTerms mt = terms_at(t_s, mesh_angle_rad);
   double factor = 1.0;
-  for (std::size_t i = 0; i < effects.size(); ++i) factor *= effects[i]->mesh_force_factor(regimes_[i]);
+  for (std::size_t i : model_.factor_effects_) factor *= effects[i]->mesh_force_factor(regimes_[i]);
   MeshState m;
   m.t_s = t_s;
   m.t_since_impact_s = time_since_impact(t_s);
@@ -231,7 +241,7 @@ double MeshIntegrator::mesh_coordinate_force_n(double t_s, const State& s, bool 
   const double c0 = model_.c0_;
   const double elastic = mt.dcs == mt.dc ? (c0 + mt.dc) * m.deflection_m
                                          : (c0 + mt.dc) * (s[kX] + mt.e) + (c0 + mt.dcs) * model_.q_s_;
-  double force = model_.static_force_ + impact_force_n(t_s) - factor * (elastic + damping * deflection_rate);
+  double force = model_.static_force_ + impact_force - factor * (elastic + damping * deflection_rate);
   for (std::size_t i = 0; i < effects.size(); ++i) {
     if (!include_stick_effects && effects[i]->stick_force_limit_n() > 0.0) continue;
     force -= effects[i]->resisting_force_n(m, regimes_[i]);
@@ -239,15 +249,18 @@ double MeshIntegrator::mesh_coordinate_force_n(double t_s, const State& s, bool 
   return force;
 }
 
-MeshIntegrator::State MeshIntegrator::derivative(double t_s, const State& s) const {
+[[gnu::always_inline]] inline MeshIntegrator::State MeshIntegrator::derivative(double t_s, const State& s) const {
+  // The pulse and the shaft speed once for both modes and the angle.
+  const double impact_force = impact_force_n(t_s);
+  const double theta_dot = kTwoPi * shaft_speed_hz(t_s);
   State d{};
   if (!stuck_) {
     d[kX] = s[kV];
-    d[kV] = mesh_coordinate_force_n(t_s, s, true) / model_.m_red_;
+    d[kV] = mesh_force(t_s, s, true, theta_dot, impact_force) / model_.m_red_;
   }
   d[kP] = s[kPdot];
-  d[kPdot] = model_.aux_part_ * impact_force_n(t_s) / model_.m_red_ - model_.aux_2zw_ * s[kPdot] - model_.aux_w2_ * s[kP];
-  d[kTheta] = kTwoPi * shaft_speed_hz(t_s);
+  d[kPdot] = model_.aux_part_ * impact_force / model_.m_red_ - model_.aux_2zw_ * s[kPdot] - model_.aux_w2_ * s[kP];
+  d[kTheta] = theta_dot;
   return d;
 }
 
@@ -312,17 +325,72 @@ double MeshIntegrator::step_length(double t_s, double t_end) const {
   return step;
 }
 
-void MeshIntegrator::locate_event(double& t_s, double step, State& s, std::uint64_t& events) {
-  // Bisection on the step fraction until the crossing is bracketed within 2^-30 of the step
-  // (<= 5e-15 s at 200 kHz), then the step to just past it and the new regimes.
+std::size_t MeshIntegrator::single_switching_effect() const {
+  // The one switching effect whose regime can change now (a stuck effect's cannot), or npos.
+  std::size_t found = static_cast<std::size_t>(-1);
+  for (std::size_t i : model_.switching_) {
+    if (stuck_ && model_.effects_[i]->stick_force_limit_n() > 0.0) continue;
+    if (found != static_cast<std::size_t>(-1)) return static_cast<std::size_t>(-1);
+    found = i;
+  }
+  return found;
+}
+
+double MeshIntegrator::event_fraction(double t_s, double step, const State& s, const State& end) const {
+  // The step fraction just past the regime change: the smallest multiple of 2^-30 at which the step
+  // ends in the new regime (<= 5e-15 s at 200 kHz). Bisection finds it in 30 trial steps. With one
+  // switching effect, its switching function g (smooth in the fraction within a regime) gives
+  // regula falsi (Illinois) trial points snapped to that grid, which close the bracket in ~6 trials;
+  // every trial still tests the regime exactly as bisection does, so both give the same fraction
+  // whenever the regime changes once within the step (the only case bisection is defined for).
+  constexpr double kGrid = 0x1p-30;
   double lo = 0.0, hi = 1.0;
-  for (int it = 0; it < 30; ++it) {
-    const double mid = 0.5 * (lo + hi);
-    if (regime_violated(t_s + mid * step, rk4(t_s, s, mid * step)))
+  auto violated_at = [&](double f) { return regime_violated(t_s + f * step, rk4(t_s, s, f * step)); };
+  const std::size_t i = single_switching_effect();
+  if (i != static_cast<std::size_t>(-1)) {
+    const Effect& eff = *model_.effects_[i];
+    auto g_at = [&](double f) {
+      const double tf = t_s + f * step;
+      return eff.switching_function(mesh_state(tf, f == 0.0 ? s : f == 1.0 ? end : rk4(t_s, s, f * step)));
+    };
+    double g_lo = g_at(0.0), g_hi = g_at(1.0);
+    int side = 0;
+    // Bracketing values of opposite regimes, else bisection from the start.
+    bool ok = std::isfinite(g_lo) && std::isfinite(g_hi) && sign_of(g_lo) == regimes_[i] &&
+              sign_of(g_hi) != regimes_[i];
+    for (int trial = 0; ok && hi - lo > kGrid && trial < 12; ++trial) {
+      const double f = lo + (hi - lo) * g_lo / (g_lo - g_hi);
+      if (!std::isfinite(f)) break;
+      const double m = std::clamp(std::round(f / kGrid) * kGrid, lo + kGrid, hi - kGrid);
+      const double g = g_at(m);
+      if (!std::isfinite(g)) break;
+      if (sign_of(g) != regimes_[i]) {
+        hi = m;
+        g_hi = g;
+        if (side == 1) g_lo *= 0.5;  // Illinois: halve the stale end's value
+        side = 1;
+      } else {
+        lo = m;
+        g_lo = g;
+        if (side == -1) g_hi *= 0.5;
+        side = -1;
+      }
+    }
+  }
+  // Bisection on the grid (the whole search when there are several switching effects).
+  while (hi - lo > kGrid) {
+    const double mid = lo + std::floor((hi - lo) / (2.0 * kGrid)) * kGrid;
+    if (violated_at(mid))
       hi = mid;
     else
       lo = mid;
   }
+  return hi;
+}
+
+void MeshIntegrator::locate_event(double& t_s, double step, State& s, const State& end, std::uint64_t& events) {
+  // The step to just past the regime change, then the new regimes.
+  const double hi = event_fraction(t_s, step, s, end);
   const bool was_moving = !stuck_;
   const int v_sign_before = sign_of(s[kV]);
   s = rk4(t_s, s, hi * step);
@@ -350,7 +418,7 @@ void MeshIntegrator::advance(double& t_s, State& s, double h_s, std::uint64_t& e
       t_s = (step == t_end - t_s) ? t_end : t_s + step;
       continue;
     }
-    locate_event(t_s, step, s, events);
+    locate_event(t_s, step, s, next, events);
   }
   t_s = t_end;
 }

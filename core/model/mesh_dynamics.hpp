@@ -95,6 +95,7 @@ class MeshModel {
   std::vector<const Effect*> effects_;
   std::vector<std::size_t> kinematic_;  // effects whose speed_factor can differ from 1
   std::vector<std::size_t> switching_;
+  std::vector<std::size_t> factor_effects_;  // effects whose mesh_force_factor can differ from 1
   double m_red_, c0_, zeta_, crit_, static_force_, q_s_, teeth_, pulse_s_;
   double stick_limit_n_ = 0.0;
   bool has_aux_ = false;
@@ -149,6 +150,9 @@ class MeshIntegrator {
 
  private:
   MeshTerms terms_at(double t_s, double mesh_angle_rad) const;
+  /// mesh_coordinate_force_n with θ̇ (rad/s) and the pulse force (N) at t given.
+  double mesh_force(double t_s, const State& s, bool include_stick_effects, double theta_dot,
+                    double impact_force) const;
   MeshState mesh_state(double t_s, const State& s) const;
   double impact_force_n(double t_s) const;
   void advance_cursor(double t_s);
@@ -158,7 +162,10 @@ class MeshIntegrator {
   bool regime_violated(double t_s, const State& s) const;
   void update_regimes(double t_s, State& s, bool velocity_reversal);
   void check_release(double t_s, const State& s);
-  void locate_event(double& t_s, double step, State& s, std::uint64_t& events);
+  /// `end`: the state after the whole step (in the regimes frozen at its start).
+  void locate_event(double& t_s, double step, State& s, const State& end, std::uint64_t& events);
+  double event_fraction(double t_s, double step, const State& s, const State& end) const;
+  std::size_t single_switching_effect() const;
 
   const MeshModel& model_;
   std::span<const ImpactPulse> pulses_;
