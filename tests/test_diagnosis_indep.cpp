@@ -143,6 +143,13 @@ TEST(DiagnoseIndependent, TransmissionErrorIsNamedNotStiffnessVariation) {
   EXPECT_EQ(res.verdict, std::vector<std::string>{"transmission_error"});
   EXPECT_TRUE(res.ambiguous.empty()) << res.ambiguous_evidence;
   EXPECT_LT(res.final_excess, 0.1);
+  // The evidence that tells it from a stiffness variation: lines at k f_z and no sidebands f0 ± k f_z
+  // (the generator's error is additive: nothing modulates the free decays).
+  for (const auto& step : res.steps) {
+    if (step.effect == "transmission_error") {
+      EXPECT_NE(step.evidence.find("no sideband"), std::string::npos) << step.evidence;
+    }
+  }
 }
 
 // Contact loss at light load (20 N m: the 2 kN impacts separate the teeth): the linear model's fit

@@ -122,7 +122,14 @@ std::string evidence(const std::string& effect, const FitResult& fit, const Resi
       o << "; ";
     }
     if (effect == "mesh_stiffness_variation") o << "sidebands f0 ± k·f_z: the stiffness varies with the mesh angle (Eq. B1)";
-    else if (effect == "transmission_error") o << "steady lines at k·f_z, present before the impact: transmission error";
+    else if (effect == "transmission_error") {
+      // What tells it from a stiffness variation: an additive excitation puts lines at k·f_z only;
+      // a stiffness variation also modulates each free decay (sidebands f0 ± k·f_z).
+      const bool sidebands = std::any_of(before.peaks.begin(), before.peaks.end(),
+                                         [](const auto& p) { return p.marker.rfind("f0+", 0) == 0 || p.marker.rfind("f0-", 0) == 0; });
+      o << "steady lines at k·f_z, present before the impact: transmission error"
+        << (sidebands ? " (sidebands f0 ± k·f_z among the lines as well)" : "; no sideband f0 ± k·f_z: no stiffness modulation");
+    }
     else o << "a decaying residual line away from f0: a second mode";
   } else if (effect == "damping_drift") {
     o << "the damping ratio changes along the record while each impact fits on its own";
