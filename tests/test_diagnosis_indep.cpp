@@ -9,6 +9,7 @@
 #include <cstdio>
 #include <numbers>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "core/diagnosis/diagnose.hpp"
@@ -35,6 +36,18 @@ rd::DiagnoseResult run(const std::vector<double>& y, const rm::RigParameters& ri
   EXPECT_GE(seg.windows.size(), 14u);
   const rd::ModelFitter fitter(y, seg, rig);
   return rd::diagnose(fitter, {});
+}
+
+/// One round of diagnose over the given candidates only (fast: the full catalogue is
+/// bench_diagnose_sweep), no term discovery.
+rd::DiagnoseResult one_round(const std::vector<double>& y, const rm::RigParameters& rig, std::vector<std::string> candidates) {
+  const auto seg = rd::subset_windows(rd::segment_recording(y, kRate, rig), 16);
+  const rd::ModelFitter fitter(y, seg, rig);
+  rd::DiagnoseOptions o;
+  o.candidates = std::move(candidates);
+  o.max_rounds = 1;
+  o.discover_terms = false;
+  return rd::diagnose(fitter, {}, o);
 }
 
 }  // namespace
@@ -125,22 +138,13 @@ TEST(DiagnoseIndependent, TransmissionErrorWithItsOwnPhasesIsReached) {
   EXPECT_GT(msv.heldout_excess, 10.0);
 }
 
-// The same record through diagnose, with the two mesh-periodic candidates only (one round, to stay
-// fast; the full catalogue is bench_diagnose_sweep): named transmission_error, not the stiffness
+// The same record through diagnose, with the two mesh-periodic candidates only (one round): named transmission_error, not the stiffness
 // variation it was named before the harmonics had their own phases, with nothing ambiguous and the
 // held-out excess at the noise (< 0.1).
 TEST(DiagnoseIndependent, TransmissionErrorIsNamedNotStiffnessVariation) {
   ig::Settings s = ig::short_test_record(ig::Hidden::kTransmissionError, 0.3e-6, 1);
   s.size2 = 0.1e-6;
-  const auto r = ig::generate(s);
-  const auto rig = paper_rig();
-  const auto seg = rd::subset_windows(rd::segment_recording(r.y, kRate, rig), 16);
-  const rd::ModelFitter fitter(r.y, seg, rig);
-  rd::DiagnoseOptions o;
-  o.candidates = {"mesh_stiffness_variation", "transmission_error"};
-  o.max_rounds = 1;
-  o.discover_terms = false;
-  const auto res = rd::diagnose(fitter, {}, o);
+  const auto res = one_round(ig::generate(s).y, paper_rig(), {"mesh_stiffness_variation", "transmission_error"});
   EXPECT_EQ(res.verdict, std::vector<std::string>{"transmission_error"});
   EXPECT_TRUE(res.ambiguous.empty()) << res.ambiguous_evidence;
   EXPECT_LT(res.final_excess, 0.1);
@@ -165,13 +169,7 @@ TEST(DiagnoseIndependent, TransmissionErrorOnOwnSimulatorIsNamed) {
   const auto sim = rm::simulate(
       rig, {{"transmission_error", {{"e1_m", 0.3e-6}, {"e2_m", 0.1e-6}}}, {"noise", {{"std_rel", 0.005}}}}, s);
   const std::vector<double> y(sim.output.begin() + static_cast<std::ptrdiff_t>(0.1 * kRate), sim.output.end());
-  const auto seg = rd::subset_windows(rd::segment_recording(y, kRate, rig), 16);
-  const rd::ModelFitter fitter(y, seg, rig);
-  rd::DiagnoseOptions o;
-  o.candidates = {"mesh_stiffness_variation", "transmission_error"};
-  o.max_rounds = 1;
-  o.discover_terms = false;
-  const auto res = rd::diagnose(fitter, {}, o);
+  const auto res = one_round(y, rig, {"mesh_stiffness_variation", "transmission_error"});
   EXPECT_EQ(res.verdict, std::vector<std::string>{"transmission_error"});
   EXPECT_LT(res.final_excess, 0.1);
 }
@@ -184,15 +182,7 @@ TEST(DiagnoseIndependent, ContactLossAtLightLoadReachesTheNoise) {
   ig::Settings s = ig::short_test_record(ig::Hidden::kContactLoss, 1.0, 1);
   s.load_torque_n_m = 20.0;
   s.seed = 104729u + 17u;  // bench_diagnose_sweep's seed 1
-  const auto r = ig::generate(s);
-  const auto rig = paper_rig(20.0);
-  const auto seg = rd::subset_windows(rd::segment_recording(r.y, kRate, rig), 16);
-  const rd::ModelFitter fitter(r.y, seg, rig);
-  rd::DiagnoseOptions o;
-  o.candidates = {"contact_loss"};
-  o.max_rounds = 1;
-  o.discover_terms = false;
-  const auto res = rd::diagnose(fitter, {}, o);
+  const auto res = one_round(ig::generate(s).y, paper_rig(20.0), {"contact_loss"});
   EXPECT_EQ(res.verdict, std::vector<std::string>{"contact_loss"});
   EXPECT_LT(res.final_excess, 0.1);
   EXPECT_FALSE(res.unexplained) << res.unexplained_where;
