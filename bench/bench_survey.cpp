@@ -6,7 +6,8 @@
 //   bench_survey sweep SEEDS F [RATE [ZETA]]   only the grid's records with that f (rate, zeta; 0 =
 //                                any), numbered as in the full sweep; no controls
 //   bench_survey controls        only the 20 controls
-//   bench_survey case FS F RATE ZETA SNR SEED [float] [wobble]   one record, verbose
+//   bench_survey case FS F RATE ZETA SNR SEED [float] [wobble] [teeth=N]   one record, verbose (teeth:
+//                                the gear's, default 22; sets the mesh lines at N x the impact rate)
 //   bench_survey hammer HIT.wav  the real hammer hit repeated 5x with gaps (tests/test_survey.cpp):
 //                                the survey's report, then analyze's events with the proposal
 #include <chrono>
@@ -155,6 +156,7 @@ int main(int argc, char** argv) {
       if (std::string(argv[i]) == "float") c.float32 = true;
       if (std::string(argv[i]) == "wobble") c.wobble = true;
       if (std::string(argv[i]) == "none") c.impacts = false;
+      if (std::string(argv[i]).rfind("teeth=", 0) == 0) c.teeth = std::atoi(argv[i] + 6);
     }
     c.duration_s = std::max(6.0, 40.0 / c.rate_hz);
     const std::string dir = std::filesystem::temp_directory_path() / ("bench_survey-" + std::to_string(getpid()));
@@ -168,6 +170,6 @@ int main(int argc, char** argv) {
     std::cout << o.analyze_err;
     return 0;
   }
-  std::cerr << "usage: bench_survey time | sweep [SEEDS [F [RATE [ZETA]]]] | controls | case FS F RATE ZETA SNR SEED [float] [wobble] [none] | hammer HIT.wav\n";
+  std::cerr << "usage: bench_survey time | sweep [SEEDS [F [RATE [ZETA]]]] | controls | case FS F RATE ZETA SNR SEED [float] [wobble] [none] [teeth=N] | hammer HIT.wav\n";
   return 2;
 }
