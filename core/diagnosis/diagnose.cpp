@@ -336,11 +336,15 @@ std::optional<FitResult> fit_candidate(const ModelFitter& fitter, const std::str
       if (g.train_chi2 < f.train_chi2) f = std::move(g);
     }
   }
-  if (name == "contact_loss") {
+  const bool pulse_at_bound = std::any_of(current.estimates.begin(), current.estimates.end(), [](const ParameterEstimate& e) {
+    return e.name == "pulse_duration_s" && e.at_bound;
+  });
+  if (name == "contact_loss" && pulse_at_bound) {
     // A cold start as well, the better training fit kept: the linear model's fit of a light-load
     // record with tooth separation drives the pulse length to the end of its range (2x the rig's),
     // and contact loss warm-started there stays in that minimum (measured on the independent
-    // generator: held-out excess 2.3 warm, 0.01 cold).
+    // generator: held-out excess 2.3 warm, 0.01 cold). A pulse length inside its range is not that
+    // trap, and the warm start alone is kept (the cold fit costs a whole candidate fit per round).
     FitResult g = fitter.fit(with, nullptr, cold_starts(current));
     if (g.train_chi2 < f.train_chi2) f = std::move(g);
   }
