@@ -43,6 +43,12 @@ class FamilyWriter {
   void sample(std::string_view name, std::string_view labels, std::uint64_t v) {
     line(name, labels) += std::to_string(v) + '\n';
   }
+  // A family of one unlabelled sample (most of them).
+  template <typename Value>
+  void one(const char* name, const char* type, const char* help, Value v) {
+    family(name, type, help);
+    sample(name, "", v);
+  }
   std::vector<MetricFamily> take() { return std::move(families_); }
 
  private:
@@ -107,7 +113,11 @@ std::string prometheus_escape(std::string_view value) {
 
 Telemetry::Telemetry(std::string source_name, std::string version, const trend::TrendConfig& trend, double fs,
                      std::string stream)
-    : source_(std::move(source_name)), version_(std::move(version)), stream_(std::move(stream)), trend_(trend), fs_(fs) {}
+    : source_(std::move(source_name)),
+      version_(std::move(version)),
+      stream_(std::move(stream)),
+      trend_(trend),
+      fs_(fs) {}
 
 void Telemetry::on_events(std::span<const pipeline::ImpactEvent> events, std::string_view last_json) {
   if (events.empty()) return;
@@ -206,60 +216,65 @@ std::vector<MetricFamily> Telemetry::metric_families() const {
   FamilyWriter w(stream_);
   const std::uint64_t one = 1;
   w.family("ridgewatch_build_info", "gauge", "ridgewatchd build and monitored source (always 1).");
-  w.sample("ridgewatch_build_info", "version=\"" + prometheus_escape(version_) + "\",source=\"" + prometheus_escape(source_) + "\"", one);
+  w.sample("ridgewatch_build_info",
+           "version=\"" + prometheus_escape(version_) + "\",source=\"" + prometheus_escape(source_) + "\"", one);
   w.family("ridgewatch_events_total", "counter", "Impact events written, by status.");
   for (std::size_t i = 0; i < kStatuses; ++i)
     w.sample("ridgewatch_events_total",
-             "status=\"" + std::string(pipeline::to_string(static_cast<pipeline::ImpactStatus>(i))) + "\"", by_status_[i]);
-  w.family("ridgewatch_impacts_detected_total", "counter", "Impact onsets detected (each yields one event).");
-  w.sample("ridgewatch_impacts_detected_total", "", counters_.impacts_detected);
-  w.family("ridgewatch_samples_total", "counter", "Input samples processed.");
-  w.sample("ridgewatch_samples_total", "", counters_.samples);
-  w.family("ridgewatch_damping_ewma_ratio", "gauge", "EWMA of the damping ratio zeta (exp of the EWMA of ln zeta); NaN while learning.");
-  w.sample("ridgewatch_damping_ewma_ratio", "", zeta_of(alarm_.ewma_ln_zeta));
-  w.family("ridgewatch_damping_baseline_ratio", "gauge", "Baseline damping ratio zeta (learned or configured); NaN while learning.");
-  w.sample("ridgewatch_damping_baseline_ratio", "", zeta_of(alarm_.baseline_ln_zeta));
+             "status=\"" + std::string(pipeline::to_string(static_cast<pipeline::ImpactStatus>(i))) + "\"",
+             by_status_[i]);
+  w.one("ridgewatch_impacts_detected_total", "counter", "Impact onsets detected (each yields one event).",
+        counters_.impacts_detected);
+  w.one("ridgewatch_samples_total", "counter", "Input samples processed.", counters_.samples);
+  w.one("ridgewatch_damping_ewma_ratio", "gauge",
+        "EWMA of the damping ratio zeta (exp of the EWMA of ln zeta); NaN while learning.",
+        zeta_of(alarm_.ewma_ln_zeta));
+  w.one("ridgewatch_damping_baseline_ratio", "gauge",
+        "Baseline damping ratio zeta (learned or configured); NaN while learning.",
+        zeta_of(alarm_.baseline_ln_zeta));
   const double s_e = alarm_.baseline_ln_sd * std::sqrt(trend_.ewma_lambda / (2.0 - trend_.ewma_lambda));
-  w.family("ridgewatch_damping_alert_limit_ratio", "gauge", "Damping ratio at which the EWMA enters alert (upper limit).");
-  w.sample("ridgewatch_damping_alert_limit_ratio", "", zeta_of(alarm_.baseline_ln_zeta + trend_.alert_sigma * s_e));
-  w.family("ridgewatch_damping_danger_limit_ratio", "gauge", "Damping ratio at which the EWMA enters danger (upper limit).");
-  w.sample("ridgewatch_damping_danger_limit_ratio", "", zeta_of(alarm_.baseline_ln_zeta + trend_.danger_sigma * s_e));
-  w.family("ridgewatch_alarm_level", "gauge", "Trend alarm level: 0 learning, 1 normal, 2 alert, 3 danger.");
-  w.sample("ridgewatch_alarm_level", "", static_cast<std::uint64_t>(alarm_.level));
-  w.family("ridgewatch_alarm_transitions_total", "counter", "Alarm level changes.");
-  w.sample("ridgewatch_alarm_transitions_total", "", transitions_);
+  w.one("ridgewatch_damping_alert_limit_ratio", "gauge", "Damping ratio at which the EWMA enters alert (upper limit).",
+        zeta_of(alarm_.baseline_ln_zeta + trend_.alert_sigma * s_e));
+  w.one("ridgewatch_damping_danger_limit_ratio", "gauge",
+        "Damping ratio at which the EWMA enters danger (upper limit).",
+        zeta_of(alarm_.baseline_ln_zeta + trend_.danger_sigma * s_e));
+  w.one("ridgewatch_alarm_level", "gauge", "Trend alarm level: 0 learning, 1 normal, 2 alert, 3 danger.",
+        static_cast<std::uint64_t>(alarm_.level));
+  w.one("ridgewatch_alarm_transitions_total", "counter", "Alarm level changes.", transitions_);
   w.family("ridgewatch_cusum", "gauge", "CUSUM of the standardised ln zeta, in baseline standard deviations.");
   w.sample("ridgewatch_cusum", "direction=\"up\"", alarm_.cusum_up);
   w.sample("ridgewatch_cusum", "direction=\"down\"", alarm_.cusum_down);
-  w.family("ridgewatch_ring_overrun_samples_total", "counter", "Samples lost because the acquisition ring buffer was full.");
-  w.sample("ridgewatch_ring_overrun_samples_total", "", counters_.overruns);
-  w.family("ridgewatch_input_gaps_total", "counter", "Gaps in the input stream (xruns, device loss, overruns).");
-  w.sample("ridgewatch_input_gaps_total", "", counters_.gaps);
-  w.family("ridgewatch_input_spikes_total", "counter", "Isolated outlier samples removed before detection.");
-  w.sample("ridgewatch_input_spikes_total", "", counters_.spikes);
-  w.family("ridgewatch_event_write_failures_total", "counter", "Events that could not be written to the event log.");
-  w.sample("ridgewatch_event_write_failures_total", "", counters_.write_failures);
+  w.one("ridgewatch_ring_overrun_samples_total", "counter",
+        "Samples lost because the acquisition ring buffer was full.",
+        counters_.overruns);
+  w.one("ridgewatch_input_gaps_total", "counter", "Gaps in the input stream (xruns, device loss, overruns).",
+        counters_.gaps);
+  w.one("ridgewatch_input_spikes_total", "counter", "Isolated outlier samples removed before detection.",
+        counters_.spikes);
+  w.one("ridgewatch_event_write_failures_total", "counter", "Events that could not be written to the event log.",
+        counters_.write_failures);
   w.family("ridgewatch_event_latency_seconds", "histogram",
            "Time from the end of an impact's decay window to its event being written (paced or live input only).");
   for (std::size_t i = 0; i < kLatencyBuckets.size(); ++i)
-    w.sample("ridgewatch_event_latency_seconds_bucket", "le=\"" + prom_value(kLatencyBuckets[i]) + "\"", latency_buckets_[i]);
+    w.sample("ridgewatch_event_latency_seconds_bucket", "le=\"" + prom_value(kLatencyBuckets[i]) + "\"",
+             latency_buckets_[i]);
   w.sample("ridgewatch_event_latency_seconds_bucket", "le=\"+Inf\"", latency_count_);
   w.sample("ridgewatch_event_latency_seconds_sum", "", latency_sum_);
   w.sample("ridgewatch_event_latency_seconds_count", "", latency_count_);
-  w.family("ridgewatch_mqtt_enabled", "gauge", "1 when output.mqtt is configured.");
-  w.sample("ridgewatch_mqtt_enabled", "", std::uint64_t{m.enabled});
-  w.family("ridgewatch_mqtt_connected", "gauge", "1 while connected to the MQTT broker.");
-  w.sample("ridgewatch_mqtt_connected", "", std::uint64_t{m.connected});
-  w.family("ridgewatch_mqtt_spool_events", "gauge", "Events in the MQTT spool waiting for the broker's acknowledgement.");
-  w.sample("ridgewatch_mqtt_spool_events", "", m.spool_events);
-  w.family("ridgewatch_mqtt_spool_bytes", "gauge", "Size of the MQTT spool on disk.");
-  w.sample("ridgewatch_mqtt_spool_bytes", "", m.spool_bytes);
-  w.family("ridgewatch_mqtt_spool_dropped_total", "counter", "Events dropped from the full MQTT spool (oldest first) or not spooled (write error).");
-  w.sample("ridgewatch_mqtt_spool_dropped_total", "", m.dropped);
-  w.family("ridgewatch_mqtt_send_failures_total", "counter", "Failed MQTT connection attempts, publishes and lost connections.");
-  w.sample("ridgewatch_mqtt_send_failures_total", "", m.send_failures);
-  w.family("ridgewatch_mqtt_published_total", "counter", "Event messages acknowledged by the broker (QoS 1) or sent (QoS 0).");
-  w.sample("ridgewatch_mqtt_published_total", "", m.published);
+  w.one("ridgewatch_mqtt_enabled", "gauge", "1 when output.mqtt is configured.", std::uint64_t{m.enabled});
+  w.one("ridgewatch_mqtt_connected", "gauge", "1 while connected to the MQTT broker.", std::uint64_t{m.connected});
+  w.one("ridgewatch_mqtt_spool_events", "gauge", "Events in the MQTT spool waiting for the broker's acknowledgement.",
+        m.spool_events);
+  w.one("ridgewatch_mqtt_spool_bytes", "gauge", "Size of the MQTT spool on disk.", m.spool_bytes);
+  w.one("ridgewatch_mqtt_spool_dropped_total", "counter",
+        "Events dropped from the full MQTT spool (oldest first) or not spooled (write error).",
+        m.dropped);
+  w.one("ridgewatch_mqtt_send_failures_total", "counter",
+        "Failed MQTT connection attempts, publishes and lost connections.",
+        m.send_failures);
+  w.one("ridgewatch_mqtt_published_total", "counter",
+        "Event messages acknowledged by the broker (QoS 1) or sent (QoS 0).",
+        m.published);
   return w.take();
 }
 
