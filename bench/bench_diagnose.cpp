@@ -13,6 +13,12 @@
 //                                        with the matching user-defined effect as a candidate
 //   bench_diagnose discover [seeds] [case] [duration_s] [rate]   term discovery (term_discovery.hpp) on
 //                                        the independent generator's cases: verdict, proposal, gain
+//   bench_diagnose paste [seeds] [case] [duration_s]   the out-of-catalogue acceptance end to end through
+//                                        the CLI: independent-generator record -> `diagnose --json`
+//                                        (paper rig, catalogue only) -> the printed `custom_effects`
+//                                        block pasted into a copy of the rig file -> `compare --with`
+//                                        the proposal: verdict, ambiguous, unexplained, terms, excesses
+//   bench_diagnose wav CASE SEED DURATION OUT.wav   one record of the independent generator (as paste)
 //   bench_diagnose discover-time         10 s at 51.2 kHz with hidden cubic damping (independent
 //                                        generator): diagnose including term discovery, wall and CPU s
 #include <algorithm>
@@ -24,11 +30,19 @@
 #include <string>
 #include <vector>
 
+#include <filesystem>
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+#include <unistd.h>
+
+#include "cli/commands.hpp"
 #include "core/diagnosis/diagnose.hpp"
 #include "core/model/custom_effect.hpp"
 #include "core/model/effect_registry.hpp"
 #include "core/model/simulator.hpp"
 #include "../tests/support/indep_gear.hpp"
+#include "../tests/support/indep_signals.hpp"
 
 namespace rd = ridgewatch::diagnosis;
 namespace rm = ridgewatch::model;
@@ -399,6 +413,7 @@ int discover_sweep(int seeds, const std::string& only, double duration, double r
         char buf[128];
         std::snprintf(buf, sizeof buf, "%s%.3g·%s", terms.empty() ? "" : " ", t.coefficient, t.term.c_str());
         terms += buf;
+        if (!t.gap_parameter.empty()) terms += " (b_dz " + std::to_string(t.gap) + " m)";
       }
       std::printf("| %s | %d | %s | %s | %.3g -> %.3g | %s | %.3g -> %.3g | %.1f |\n", c.name.c_str(), seed,
                   acc.empty() ? "none" : acc.c_str(), res.unexplained ? "yes" : "no", res.baseline_excess, res.final_excess,
@@ -417,6 +432,98 @@ int discover_sweep(int seeds, const std::string& only, double duration, double r
     }
   }
   return 0;
+}
+
+/// The out-of-catalogue acceptance through the real CLI, as a user would run it: the record of the
+/// independent generator as a WAV, `diagnose --json` with the paper rig (catalogue only), the printed
+/// `proposed.yaml` pasted as the model section of a copy of the rig file, then `compare --with` the
+/// base effects and the proposal (compare fits every impact of the record, not diagnose's 16).
+int paste_sweep(int seeds, const std::string& only, double duration) {
+  namespace ig = ridgewatch::testsupport::indep;
+  namespace is = ::indep;
+  const double rate = 25600.0;
+  const std::string rig = std::string(RIDGEWATCH_SOURCE_DIR) + "/config/rigs/paper-rig.yaml";
+  std::ifstream rf(rig);
+  std::ostringstream rs;
+  rs << rf.rdbuf();
+  const std::string rig_text = rs.str().substr(0, rs.str().find("\nmodel:")) + "\n";
+  const auto dir = std::filesystem::temp_directory_path() / ("ridgewatch-paste-" + std::to_string(::getpid()));
+  std::filesystem::create_directories(dir);
+  std::printf("| hidden | seed | verdict | ambiguous | unexplained | excess | proposed (fitted) | excess fitted by diagnose | compare before -> after paste | s |\n|---|---|---|---|---|---|---|---|---|---|\n");
+  for (const auto& c : ig::sweep_cases()) {
+    if (c.in_catalogue || (!only.empty() && c.name != only)) continue;
+    for (int seed = 1; seed <= seeds; ++seed) {
+      ig::Settings st = c.settings;
+      st.seed = static_cast<std::uint64_t>(seed) * 104729u + 17u;
+      st.duration_s = duration;
+      st.sample_rate_hz = rate;
+      const auto t0 = std::chrono::steady_clock::now();
+      const auto rec = ig::generate(st);
+      const std::string wav = (dir / "rec.wav").string();
+      is::write_wav_mono(wav, rec.y, rate, is::SampleFormat::float32);
+      std::ostringstream out, err;
+      // Exit 3 (the final model's fit is flagged "not described by the rig") still prints the JSON.
+      const int rc = ridgewatch::cli::run_diagnose({"--rig", rig, wav, "--json", "--quiet"}, out, err);
+      if (out.str().empty()) {
+        std::printf("| %s | %d | diagnose failed (exit %d): %s |\n", c.name.c_str(), seed, rc, err.str().c_str());
+        continue;
+      }
+      const auto j = nlohmann::json::parse(out.str());
+      std::string verdict, amb, terms, after = "-";
+      for (const auto& v : j["verdict"]) verdict += (verdict.empty() ? "" : "+") + v.get<std::string>();
+      for (const auto& v : j["ambiguous"]) amb += (amb.empty() ? "" : "|") + v.get<std::string>();
+      const auto& p = j["proposed"];
+      const bool proposed = p.is_object() && p["present"].get<bool>();
+      if (p.is_object())
+        for (const auto& t : p["terms"]) {
+          char buf[96];
+          std::snprintf(buf, sizeof buf, "%s%.3g·%s", terms.empty() ? "" : " ", t["coefficient"].get<double>(),
+                        t["term"].get<std::string>().c_str());
+          terms += buf;
+          if (t["gap_m"].is_number()) terms += " (b_dz " + std::to_string(t["gap_m"].get<double>()) + " m)";
+        }
+      if (!proposed) terms = "none" + (p.is_object() ? ": " + p["note"].get<std::string>() + (terms.empty() ? "" : " [" + terms + "]") : "");
+      std::string before = "-";
+      if (proposed) {
+        const std::string pasted = (dir / "rig-pasted.yaml").string();
+        std::ofstream(pasted) << rig_text << p["yaml"].get<std::string>();
+        std::vector<std::string> args = {"--rig", pasted, wav, "--json"};
+        for (const auto& e : p["base_effects"]) args.insert(args.end(), {"--with", e.get<std::string>()});
+        args.insert(args.end(), {"--with", p["effect"].get<std::string>()});
+        std::ostringstream o1, e1, o2, e2;
+        if (ridgewatch::cli::run_compare({"--rig", rig, wav, "--json"}, o1, e1) == 0)
+          before = std::to_string(nlohmann::json::parse(o1.str())["heldout_excess"].get<double>());
+        after = ridgewatch::cli::run_compare(args, o2, e2) == 0
+                    ? std::to_string(nlohmann::json::parse(o2.str())["heldout_excess"].get<double>())
+                    : "compare failed: " + e2.str();
+      }
+      const double secs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+      const double fitted = p.is_object() && p["heldout_excess_fitted"].is_number() ? p["heldout_excess_fitted"].get<double>() : NAN;
+      if (rc != 0) verdict += " (exit " + std::to_string(rc) + ": " + j["not_describable_because"].dump() + ")";
+      std::printf("| %s | %d | %s | %s | %s | %.3g -> %.3g | %s | %.3g | %s -> %s | %.0f |\n", c.name.c_str(), seed,
+                  verdict.empty() ? "none" : verdict.c_str(), amb.empty() ? "-" : amb.c_str(),
+                  j["unexplained"]["present"].get<bool>() ? "yes" : "no", j["baseline_excess"].get<double>(),
+                  j["final_excess"].get<double>(), terms.c_str(), fitted, before.c_str(), after.c_str(), secs);
+      std::fflush(stdout);
+    }
+  }
+  std::filesystem::remove_all(dir);
+  return 0;
+}
+
+/// One record of the independent generator as a float WAV (25.6 kHz), the paste sweep's seed numbering.
+int write_indep_wav(const std::string& name, int seed, double duration, const std::string& out) {
+  namespace ig = ridgewatch::testsupport::indep;
+  for (const auto& c : ig::sweep_cases()) {
+    if (c.name != name) continue;
+    ig::Settings st = c.settings;
+    st.seed = static_cast<std::uint64_t>(seed) * 104729u + 17u;
+    st.duration_s = duration;
+    st.sample_rate_hz = 25600.0;
+    ::indep::write_wav_mono(out, ig::generate(st).y, st.sample_rate_hz, ::indep::SampleFormat::float32);
+    return 0;
+  }
+  return 2;
 }
 
 /// Timing of diagnose with term discovery: 10 s at 51.2 kHz, cubic damping 7e8 N s³/m³ hidden (the
@@ -466,6 +573,9 @@ int main(int argc, char** argv) {
     return indep_sweep(argc > 2 ? std::atoi(argv[2]) : 3, argc > 3 ? argv[3] : "", argc > 4 ? std::atof(argv[4]) : 2.0,
                        argc > 5 ? std::atof(argv[5]) : 1.0, argc > 6 ? std::atof(argv[6]) : 51200.0);
   if (mode == "discover-time") return discover_timing();
+  if (mode == "wav" && argc > 5) return write_indep_wav(argv[2], std::atoi(argv[3]), std::atof(argv[4]), argv[5]);
+  if (mode == "paste")
+    return paste_sweep(argc > 2 ? std::atoi(argv[2]) : 1, argc > 3 ? argv[3] : "", argc > 4 ? std::atof(argv[4]) : 2.0);
   if (mode == "discover")
     return discover_sweep(argc > 2 ? std::atoi(argv[2]) : 2, argc > 3 ? argv[3] : "cubic_damping", argc > 4 ? std::atof(argv[4]) : 2.0,
                           argc > 5 ? std::atof(argv[5]) : 25600.0);
