@@ -65,6 +65,10 @@ struct DiscoveredTerm {
   double sd = 0.0;           ///< standard error of the coefficient (training fit)
   double heldout_loss = 0.0; ///< held-out excess gained by this term (excess without it - with it)
   double linear_coefficient = 0.0;  ///< the first-order estimate (coefficient is replaced by a refit's value)
+  /// Dead-zone term only (min(max(x, -b_dz), b_dz)): the gap's parameter name and value (m; from the
+  /// grid, replaced by the refit's value). Empty / 0 for every other term.
+  std::string gap_parameter;
+  double gap = 0.0;
 };
 
 struct TermDiscoveryResult {
