@@ -474,6 +474,7 @@ int paste_sweep(int seeds, const std::string& only, double duration) {
       st.seed = static_cast<std::uint64_t>(seed) * 104729u + 17u;
       st.duration_s = duration;
       st.sample_rate_hz = rate;
+      if (const char* f = std::getenv("RW_SIZE_FACTOR")) st.size *= std::atof(f);  // e.g. a smaller dead zone
       const auto t0 = std::chrono::steady_clock::now();
       const auto rec = ig::generate(st);
       const std::string wav = (dir / "rec.wav").string();
@@ -530,7 +531,8 @@ int paste_sweep(int seeds, const std::string& only, double duration) {
 
 /// Interval coverage: how often the fit's 95 % interval (u ± 1.96 sd_u, sd from s² (JᵀJ)⁻¹) covers the
 /// truth, over `seeds` records of the independent generator with one hidden effect, fitted with the
-/// matching model (16 impacts at 25.6 kHz, 1 % noise). `which`: "none" (the linear model; 0.64 s), "coulomb" (catalogue coulomb_friction,
+/// matching model (16 impacts at 25.6 kHz, 1 % noise). `which`: "none" (the linear model; 0.64 s),
+/// "coulomb-own" (30 N of friction from ridgewatch's own simulator, for comparison), "coulomb" (catalogue coulomb_friction,
 /// 30 N; 0.64 s) or "drift" (user-defined stiffness_drift, c0 +0.4 %/s: kd = 0.004 c0; 2 s). The truth
 /// of c0 and ζ is the generator's (8.04e8 N/m, 0.024). Nominal rate 0.95: with N seeds a rate below
 /// 0.95 - 2 sqrt(0.95 · 0.05 / N) (0.85 for N = 20) is too low to be chance.
@@ -549,6 +551,12 @@ int coverage(const std::string& which, int seeds) {
     effect = "stiffness_drift";
     key = "stiffness_drift.kd";
     truth = 0.004 * 8.04e8;
+  } else if (which == "coulomb-own") {
+    // The same friction simulated by ridgewatch's own simulator (exact stick/slip, half-sine pulse):
+    // separates an estimator problem from a difference between the two generators' physics.
+    effect = "coulomb_friction";
+    key = "coulomb_friction.force_n";
+    truth = 30.0;
   } else if (which == "none") {
     st.duration_s = 0.64;  // the linear model alone: c0 and ζ
   } else {
@@ -570,11 +578,13 @@ int coverage(const std::string& which, int seeds) {
   std::printf("\n|---|---|---|%s\n", truths.size() > 2 ? "---|---|---|" : "---|---|");
   for (int seed = 1; seed <= seeds; ++seed) {
     st.seed = static_cast<std::uint64_t>(seed) * 7727u + 3u;
-    const auto rec = ig::generate(st);
     rm::RigParameters rig;
     rig.crack_angle_rad = 1.0;
-    const auto seg = rd::subset_windows(rd::segment_recording(rec.y, st.sample_rate_hz, rig), 16);
-    const rd::ModelFitter fitter(rec.y, seg, rig);
+    const std::vector<double> y = which == "coulomb-own"
+                                      ? record(rig, {{"coulomb_friction", {{"force_n", truth}}}}, 0.01, 0.64, st.seed, st.sample_rate_hz)
+                                      : ig::generate(st).y;
+    const auto seg = rd::subset_windows(rd::segment_recording(y, st.sample_rate_hz, rig), 16);
+    const rd::ModelFitter fitter(y, seg, rig);
     const auto f = fitter.fit(effect.empty() ? std::vector<std::string>{} : std::vector<std::string>{effect});
     const auto rep = rd::analyse_residual(fitter, f);
     std::printf("| %d | %.3g | %.3g |", seed, f.heldout_excess, rep.ljung_box_q);
