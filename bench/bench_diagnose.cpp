@@ -347,6 +347,11 @@ int indep_sweep(int seeds, const std::string& only, double duration, double size
   return 0;
 }
 
+/// The user-defined stiffness drift of config/examples/rig-custom-effect.yaml.
+rm::CustomEffectDefinition stiffness_drift_definition() {
+  return {"stiffness_drift", "-kd * t_abs * x", {{"kd", "N/(m s)", -1e9, 1e9, 0.0, 0.0, ""}}, {}};
+}
+
 /// Out-of-catalogue effects of the independent generator diagnosed with the matching user-defined
 /// effect available (README "User-defined effects"): 2 s at 25.6 kHz, 1 % noise, 16 impacts.
 /// `which`: "cubic" (c3 = 2e9 N s³/m³) or "drift" (c0 +0.4 %/s: kd = 0.004 c0 = 3.216e6 N/(m s)).
@@ -360,7 +365,7 @@ int custom_indep(const std::string& which, int seeds) {
   if (which == "drift") {
     st.hidden = ig::Hidden::kFrequencyDrift;
     st.size = 0.004;
-    def = {"stiffness_drift", "-kd * t_abs * x", {{"kd", "N/(m s)", -1e9, 1e9, 0.0, 0.0, ""}}, {}};
+    def = stiffness_drift_definition();
   } else {
     st.hidden = ig::Hidden::kCubicDamping;
     st.size = 2e9;
@@ -432,6 +437,7 @@ int discover_sweep(int seeds, const std::string& only, double duration, double r
         terms += buf;
         if (!t.gap_parameter.empty()) terms += " (b_dz " + std::to_string(t.gap) + " m)";
       }
+      if (res.proposal.proposed) terms += " (fitted: held-out excess " + rd::format_number(res.proposal.verified_excess) + ")";
       std::printf("| %s | %d | %s | %s | %.3g -> %.3g | %s | %.3g -> %.3g | %.1f |\n", c.name.c_str(), seed,
                   acc.empty() ? "none" : acc.c_str(), res.unexplained ? "yes" : "no", res.baseline_excess, res.final_excess,
                   res.proposal.proposed ? terms.c_str() : (res.discovery_run ? ("none: " + res.proposal.note + (terms.empty() ? "" : " [" + terms + "]")).c_str() : "-"),
@@ -538,16 +544,15 @@ int paste_sweep(int seeds, const std::string& only, double duration) {
 /// 0.95 - 2 sqrt(0.95 · 0.05 / N) (0.85 for N = 20) is too low to be chance.
 int coverage(const std::string& which, int seeds) {
   namespace ig = ridgewatch::testsupport::indep;
-  ig::Settings st;
+  ig::Settings st;  // 25.6 kHz, 1 % noise as custom_indep's records
   st.sample_rate_hz = 25600.0;
-  st.noise_rel = 0.01;
   std::string effect, key;
   double truth = 0.0;
   if (which == "drift") {
     st.hidden = ig::Hidden::kFrequencyDrift;
     st.size = 0.004;
     st.duration_s = 2.0;
-    rm::set_user_effects({{rm::make_custom_effect({"stiffness_drift", "-kd * t_abs * x", {{"kd", "N/(m s)", -1e9, 1e9, 0.0, 0.0, ""}}, {}}), {}}});
+    rm::set_user_effects({{rm::make_custom_effect(stiffness_drift_definition()), {}}});
     effect = "stiffness_drift";
     key = "stiffness_drift.kd";
     truth = 0.004 * 8.04e8;
