@@ -250,6 +250,7 @@ std::string format_coefficient(double v) {
 std::vector<std::string> term_library(int mesh_orders) {
   std::vector<std::string> out;
   for (const auto& t : library(mesh_orders)) out.push_back(t.expr);
+  out.push_back("min(max(x, -b_dz), b_dz)");  // the dead-zone family (its gap grid depends on the fit)
   return out;
 }
 
