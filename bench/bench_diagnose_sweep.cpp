@@ -13,7 +13,7 @@
 //     cases       comma-separated case names of indep::sweep_cases() (default: every catalogue case
 //                 and the controls; the out-of-catalogue ones only when named)
 // A verdict is "right" when it is exactly the hidden effect with nothing ambiguous; a control is a
-// false alarm when anything is accepted or listed as ambiguous.
+// false alarm when anything is accepted, listed as ambiguous or proposed by term discovery.
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -86,9 +86,11 @@ Run run_one(const ig::Case& c, int seed, const Options& o) {
   r.label = verdict_label(res);
   std::string want = c.name == "mesh_stiffness_variation+lines" ? "mesh_stiffness_variation" : c.name;
   r.right = c.in_catalogue ? r.label == want : (res.verdict.empty() && res.ambiguous.empty() && res.unexplained);
+  if (c.name == "none" && res.proposal.proposed) r.right = false;  // a control must not get a proposed force either
   std::printf("| %s | %d | %s | %s | %.3g -> %.3g | %s | %.0f / %.0f |\n", c.name.c_str(), seed, r.label.c_str(),
               res.unexplained ? "yes" : "no", res.baseline_excess, res.final_excess, r.right ? "yes" : "NO", wall, cpu);
   if (!r.right && !res.ambiguous_evidence.empty()) std::printf("|   | | ambiguous: %s | | | | |\n", res.ambiguous_evidence.c_str());
+  if (res.proposal.proposed) std::printf("|   | | proposed: %s | | | | |\n", res.proposal.force.c_str());
   std::fflush(stdout);
   return r;
 }

@@ -44,7 +44,9 @@ nlohmann::json proposal_json(const diagnosis::DiagnoseResult& r, const std::stri
   nlohmann::json terms = nlohmann::json::array();
   for (const auto& t : p.terms)
     terms.push_back({{"term", t.term}, {"parameter", t.parameter}, {"unit", t.unit}, {"coefficient", t.coefficient},
-                     {"sd", t.sd}, {"linear_estimate", t.linear_coefficient}, {"heldout_gain", t.heldout_loss}});
+                     {"sd", t.sd}, {"linear_estimate", t.linear_coefficient}, {"heldout_gain", t.heldout_loss},
+                     {"gap_parameter", t.gap_parameter.empty() ? nlohmann::json(nullptr) : nlohmann::json(t.gap_parameter)},
+                     {"gap_m", t.gap_parameter.empty() ? nlohmann::json(nullptr) : nlohmann::json(t.gap)}});
   return {{"present", p.proposed},
           {"yaml", p.proposed ? nlohmann::json(yaml) : nlohmann::json(nullptr)},
           {"effect", p.definition.name},
@@ -72,7 +74,8 @@ void proposal_text(std::ostream& text, const diagnosis::DiagnoseResult& r, const
        << g(p.required_gain, 2) << "), " << g(p.verified_excess) << " fitted with the model\n";
   for (const auto& t : p.terms)
     text << "  " << t.term << ": " << g(t.coefficient, 4) << " " << t.unit << " (sd " << g(t.sd, 2) << "; first order "
-         << g(t.linear_coefficient, 3) << "), held-out gain " << g(t.heldout_loss) << " to first order\n";
+         << g(t.linear_coefficient, 3) << "), held-out gain " << g(t.heldout_loss) << " to first order"
+         << (t.gap_parameter.empty() ? std::string() : "; gap " + t.gap_parameter + " = " + g(t.gap, 4) + " m") << "\n";
   text << "paste into the rig file (merge with an existing model: section), then run\n  ridgewatch compare --rig RIG.yaml "
        << file;
   for (const auto& e : p.base_effects) text << " --with " << e;

@@ -23,6 +23,7 @@
 #include "core/model/custom_effect.hpp"
 #include "core/model/effect_registry.hpp"
 #include "core/model/simulator.hpp"
+#include "support/indep_gear.hpp"
 
 namespace rd = ridgewatch::diagnosis;
 namespace rm = ridgewatch::model;
@@ -359,3 +360,39 @@ TEST(CustomEffects, DuplicateOfACatalogueEffectFitsTheSameParameters) {
 }
 
 }  // namespace
+
+#ifndef RIDGEWATCH_SANITIZED
+// Hidden cubic damping from the independent generator (tests/support/indep_gear.hpp, 2 s at 25.6 kHz,
+// 1 % noise, seed 1, 16 impacts; README "User-defined effects"), the user-defined cubic_damping the
+// only candidate: the candidate fit must not stop where the linear model's ζ (twice the truth, it
+// absorbed the cubic damping) counts the damping twice. That warm-only fit ended at held-out excess
+// 0.26 with c3 = 1.91e9 and an interval (1.89e9 .. 1.94e9) that missed the truth 2e9. Required: below
+// the 0.1 target and the 95 % interval covering the truth.
+TEST(CustomEffects, CubicDampingCandidateIsNotStuckAtTheLinearModelsDamping) {
+  namespace ig = ridgewatch::testsupport::indep;
+  auto st = ig::short_test_record(ig::Hidden::kCubicDamping, 2e9, 1);
+  st.duration_s = 2.0;
+  const auto rec = ig::generate(st);
+  rm::RigParameters rig;
+  rig.crack_angle_rad = 1.0;
+  const auto seg = rd::subset_windows(rd::segment_recording(rec.y, st.sample_rate_hz, rig), 16);
+  const rd::ModelFitter fitter(rec.y, seg, rig);
+  rm::set_user_effects({{rm::make_custom_effect({"cubic_damping", "-c3 * v^3", {{"c3", "N s^3/m^3", 0.0, 1e11, 0.0, 0.0, ""}}, {}}), {}}});
+  rd::DiagnoseOptions opt;
+  opt.max_rounds = 1;
+  opt.candidates = {"cubic_damping"};
+  opt.discover_terms = false;
+  const rd::DiagnoseResult r = rd::diagnose(fitter, {}, opt);
+  rm::set_user_effects({});
+  ASSERT_EQ(r.verdict, std::vector<std::string>{"cubic_damping"});
+  EXPECT_LT(r.final_excess, 0.1);
+  bool found = false;
+  for (const auto& e : r.final_fit.estimates) {
+    if (e.name != "cubic_damping.c3") continue;
+    found = true;
+    EXPECT_LE(e.ci95_lo, 2e9);
+    EXPECT_GE(e.ci95_hi, 2e9);
+  }
+  EXPECT_TRUE(found);
+}
+#endif

@@ -90,6 +90,21 @@ TEST(TermDiscovery, StiffnessDriftGivesTimeTimesDeflection) {
   EXPECT_GT(t->coefficient, -2.0 * 3.216e6);
 }
 
+// A dead zone in the mesh (the dynamic restoring force vanishes inside |x| < b, linear outside; out
+// of the catalogue; b = 20 nm, 2 % of the typical 1 µm response, where the first-order step is still
+// close): the library's dead-zone family proposes a_dz · min(max(x, -b_dz), b_dz) with a positive
+// coefficient (the spring force lost inside the gap: a_dz = c0 = 8.04e8 N/m at the truth). Allowed:
+// a factor 2 on a_dz · b_dz, the force the gap removes (the grid's gap and the coefficient trade off
+// to first order).
+TEST(TermDiscovery, DeadZoneGivesTheDeadZoneTerm) {
+  const auto rec = ig::generate(ig::short_test_record(ig::Hidden::kDeadZone, 2e-8, 1));
+  const auto r = discover_on_linear_fit(rec.y);
+  const auto* t = find_term(r.terms, "min(max(x, -b_dz), b_dz)");
+  ASSERT_NE(t, nullptr) << r.force << " " << r.note;
+  EXPECT_GT(t->coefficient * t->gap, 0.5 * 8.04e8 * 2e-8);
+  EXPECT_LT(t->coefficient * t->gap, 2.0 * 8.04e8 * 2e-8);
+}
+
 #ifndef RIDGEWATCH_SANITIZED
 
 // Hidden cubic damping (7e8 N s³/m³: at the impact's peak velocity 3.5x the linear damping force), end to end through the CLI as a user would: diagnose proposes

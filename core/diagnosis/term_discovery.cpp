@@ -5,6 +5,7 @@
 #include <functional>
 #include <numeric>
 #include <sstream>
+#include <utility>
 
 #include <Eigen/Dense>
 
@@ -20,6 +21,14 @@ namespace {
 struct LibraryTerm {
   std::string expr, param, unit;
   std::function<double(const TraceSample&)> eval;
+  /// Dead-zone family only: the gap b (m) of sat_b(x) and the name of its parameter in the proposal
+  /// (0 and empty for every other term).
+  double gap;
+  std::string gap_param;
+
+  LibraryTerm(std::string e, std::string p, std::string u, std::function<double(const TraceSample&)> f,
+              double b = 0.0, std::string bp = {})
+      : expr(std::move(e)), param(std::move(p)), unit(std::move(u)), eval(std::move(f)), gap(b), gap_param(std::move(bp)) {}
 };
 
 /// Unit of the coefficient of x^ex v^ev t^et: N s^(ev-et) / m^(ex+ev).
@@ -68,6 +77,21 @@ std::vector<LibraryTerm> library(int mesh_orders) {
 }
 
 constexpr std::size_t kAlways = 2;  // x and v
+
+/// The dead-zone family: sat_b(x) = min(max(x, -b), b), the force a spring of stiffness a_dz loses
+/// inside a gap |x| < b (with a_dz = c0 the mesh carries no dynamic force there: backlash, a dead zone
+/// around the loaded contact). Nonlinear in b, so one column per gap of a grid: b = x_rms · 2^-k,
+/// k = 0..4 (x_rms the RMS of the model's dynamic deflection over all windows). discover_terms lets
+/// only the gap that fits the training impacts best into the regression; the proposal fits b itself.
+constexpr int kGapGrid = 5;
+
+void add_dead_zone_terms(std::vector<LibraryTerm>& L, double x_rms) {
+  for (int k = 0; k < kGapGrid; ++k) {
+    const double b = x_rms * std::ldexp(1.0, -k);
+    L.emplace_back("min(max(x, -b_dz), b_dz)", "a_dz", "N/m", [b](const TraceSample& s) { return std::clamp(s.x, -b, b); },
+                   b, "b_dz");
+  }
+}
 
 /// Response of the fitted linear mesh oscillator m ẍ + d ẋ + k x = f (f linear between samples, zero
 /// state at the window start) as the sensor sees it (displacement, velocity or acceleration), times
@@ -226,6 +250,7 @@ std::string format_coefficient(double v) {
 std::vector<std::string> term_library(int mesh_orders) {
   std::vector<std::string> out;
   for (const auto& t : library(mesh_orders)) out.push_back(t.expr);
+  out.push_back("min(max(x, -b_dz), b_dz)");  // the dead-zone family (its gap grid depends on the fit)
   return out;
 }
 
@@ -254,6 +279,13 @@ Problem build_problem(const ModelFitter& fitter, const FitResult& fit, int mesh_
   const double damping = 2.0 * zeta * std::sqrt(c0 * m_red);
   const double gain = fit.params.polarity * fitter.rig().sensor_sensitivity / seg.noise_sd;
   const ModelFitter::Linearisation lin = fitter.linearise(fit);
+  double x2 = 0.0, nx = 0.0;
+  for (const auto& states : lin.states)
+    for (const auto& st : states) {
+      x2 += st.x * st.x;
+      nx += 1.0;
+    }
+  if (x2 > 0.0) add_dead_zone_terms(pr.library, std::sqrt(x2 / nx));
   // Column scales: the inverse RMS of each term over the model's states (so that the normal equations
   // see columns of comparable size; the coefficients are mapped back to N per unit of the term).
   pr.scale.assign(L.size(), 0.0);
@@ -275,6 +307,24 @@ Problem build_problem(const ModelFitter& fitter, const FitResult& fit, int mesh_
   }
   pr.dof = pr.n_train - 2.0 * train_windows;  // two nuisances per training window
   return pr;
+}
+
+/// The dead-zone column whose gap fits the training impacts best beside x and v (the least training
+/// RSS of the three-column solve; the held-out impacts are kept for the gates), 0 if there is none.
+std::size_t best_gap(const Problem& pr, const std::vector<std::size_t>& base) {
+  std::size_t best = 0;
+  double best_rss = INFINITY;
+  for (std::size_t j = 0; j < pr.library.size(); ++j) {
+    if (pr.library[j].gap == 0.0 || !(pr.scale[j] > 0.0) || !std::isfinite(pr.scale[j])) continue;
+    std::vector<std::size_t> with = base;
+    with.push_back(j);
+    const Solve s = solve_training(pr.grams, with, pr.dof);
+    if (s.ok && s.rss < best_rss) {
+      best_rss = s.rss;
+      best = j;
+    }
+  }
+  return best;
 }
 
 /// Sequentially thresholded least squares on the training impacts, one term per pass (the weakest
@@ -348,6 +398,8 @@ void build_proposal(const Problem& pr, const std::vector<std::size_t>& active, c
     d.coefficient = s.xi[static_cast<Eigen::Index>(i)] * pr.scale[active[i]];
     d.sd = s.sd[static_cast<Eigen::Index>(i)] * pr.scale[active[i]];
     d.linear_coefficient = d.coefficient;
+    d.gap_parameter = t.gap_param;
+    d.gap = t.gap;
     std::vector<std::size_t> without = active;
     without.erase(without.begin() + static_cast<std::ptrdiff_t>(i));
     const Solve sw = solve_training(pr.grams, without, pr.dof);
@@ -366,6 +418,18 @@ void build_proposal(const Problem& pr, const std::vector<std::size_t>& active, c
     p.null_value = 0.0;
     p.description = "coefficient of " + t.expr + " (term discovery, " + format_coefficient(d.coefficient) + " fitted)";
     res.definition.parameters.push_back(p);
+    if (!t.gap_param.empty()) {
+      // The gap of the dead-zone term: fitted with the coefficient (log scale over [0, 100 b]).
+      model::EffectParameter b;
+      b.key = t.gap_param;
+      b.unit = "m";
+      b.min_value = 0.0;
+      b.max_value = 100.0 * t.gap;
+      b.default_value = t.gap;
+      b.null_value = 0.0;
+      b.description = "gap of the dead-zone term (term discovery, " + format_coefficient(t.gap) + " m from the grid)";
+      res.definition.parameters.push_back(b);
+    }
   }
   res.force = force.str();
   res.definition.force = res.force;
@@ -385,13 +449,14 @@ TermDiscoveryResult discover_terms(const ModelFitter& fitter, const FitResult& f
   // A term that is zero on every state (e.g. sign(v) of a model at rest) cannot be estimated.
   std::vector<std::size_t> active;
   for (std::size_t j = 0; j < pr.library.size(); ++j)
-    if (pr.scale[j] > 0.0 && std::isfinite(pr.scale[j])) active.push_back(j);
+    if (pr.scale[j] > 0.0 && std::isfinite(pr.scale[j]) && pr.library[j].gap == 0.0) active.push_back(j);
   if (active.size() < kAlways || active[0] != 0 || active[1] != 1) {
     res.note = "the model does not move (x or v is zero on every sample)";
     return res;
   }
   const std::vector<std::size_t> base = {0, 1};
   const Solve s0 = solve_training(pr.grams, base, pr.dof);
+  if (const std::size_t gap = best_gap(pr, base); gap != 0) active.push_back(gap);
   Solve s;
   if (!s0.ok || !stlsq(pr, active, s, opt)) {
     res.note = "the library's normal equations are singular";
@@ -433,12 +498,20 @@ void verify_proposal(const ModelFitter& fitter, const FitResult& base_fit, TermD
   model::set_user_effects(with);
   std::vector<std::string> effects = p.base_effects;
   effects.push_back(p.definition.name);
+  // Two starts, the better training fit kept: warm from the base fit, and cold from the rig's values
+  // (as compare starts a pasted block). The warm start alone counts twice what the base model's ζ
+  // and c0 absorbed of the missing force (cubic damping: ζ twice the truth beside the full v³
+  // coefficient), and the fit could stop in that corner.
   FitResult f;
-  bool ok = true;
-  try {
-    f = fitter.fit(effects, &base_fit);
-  } catch (const std::exception&) {
-    ok = false;  // the force left its finite range during the fit
+  bool ok = false;
+  for (const FitResult* warm : {&base_fit, static_cast<const FitResult*>(nullptr)}) {
+    try {
+      FitResult g = fitter.fit(effects, warm);
+      if (!ok || g.train_chi2 < f.train_chi2) f = std::move(g);
+      ok = true;
+    } catch (const std::exception&) {
+      // the force left its finite range during this fit
+    }
   }
   model::set_user_effects(saved);
   if (!ok) {
@@ -448,7 +521,12 @@ void verify_proposal(const ModelFitter& fitter, const FitResult& base_fit, TermD
   }
   p.verified_excess = f.heldout_excess;
   for (auto& t : p.terms)
-    for (const auto& e : f.estimates)
+    for (const auto& e : f.estimates) {
+      if (!t.gap_parameter.empty() && e.name == p.definition.name + "." + t.gap_parameter) {
+        t.gap = e.value;
+        for (auto& q : p.definition.parameters)
+          if (q.key == t.gap_parameter) q.default_value = e.value;
+      }
       if (e.name == p.definition.name + "." + t.parameter) {
         t.coefficient = std::copysign(e.value, t.linear_coefficient);
         t.sd = e.sd;
@@ -458,6 +536,7 @@ void verify_proposal(const ModelFitter& fitter, const FitResult& base_fit, TermD
             q.max_value = std::max(q.max_value, 100.0 * e.value);
           }
       }
+    }
   const double gain = base_fit.heldout_excess - f.heldout_excess;
   const double need = 3.0 * std::sqrt(2.0 / std::max(1.0, f.heldout_n)) * (1.0 + std::max(0.0, f.heldout_excess));
   if (!(gain > need)) {

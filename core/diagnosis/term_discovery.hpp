@@ -42,8 +42,8 @@ namespace ridgewatch::diagnosis {
 
 struct TermDiscoveryOptions {
   /// STLSQ threshold on |ξ / sd(ξ)|: 4 standard errors (p = 6e-5 per term under no effect; the
-  /// library has 23 candidates, so a false term survives this step with p ~ 1.5e-3, and then still
-  /// has to improve the held-out impacts).
+  /// library has 24 candidates with the dead-zone term of the best gap, so a false term survives this
+  /// step with p ~ 1.5e-3, and then still has to improve the held-out impacts).
   double t_threshold = 4.0;
   /// At most this many proposed terms (the weakest are dropped first): a proposal is for a person to read.
   std::size_t max_terms = 5;
@@ -65,6 +65,10 @@ struct DiscoveredTerm {
   double sd = 0.0;           ///< standard error of the coefficient (training fit)
   double heldout_loss = 0.0; ///< held-out excess gained by this term (excess without it - with it)
   double linear_coefficient = 0.0;  ///< the first-order estimate (coefficient is replaced by a refit's value)
+  /// Dead-zone term only (min(max(x, -b_dz), b_dz)): the gap's parameter name and value (m; from the
+  /// grid, replaced by the refit's value). Empty / 0 for every other term.
+  std::string gap_parameter;
+  double gap = 0.0;
 };
 
 struct TermDiscoveryResult {
@@ -83,7 +87,8 @@ struct TermDiscoveryResult {
   double verified_excess = std::numeric_limits<double>::quiet_NaN();
 };
 
-/// The library terms in muparser syntax, in the order they are tried (x and v first: always kept).
+/// The library terms in muparser syntax, in the order they are tried (x and v first: always kept; the
+/// dead-zone family last, once for its grid of gaps).
 std::vector<std::string> term_library(int mesh_orders = 3);
 
 /// Term discovery on a fit's held-out residual (see above). Throws nothing on bad data: an empty
@@ -93,7 +98,8 @@ TermDiscoveryResult discover_terms(const ModelFitter& fitter, const FitResult& f
 
 /// The proposal checked by the real (nonlinear) fitter: the proposed effect is registered as a
 /// user-defined effect of this thread for the fit and removed again (the thread's user effects are
-/// restored), the base model plus the effect fitted from `base_fit` and the linearised values. Sets
+/// restored), the base model plus the effect fitted from `base_fit` and the linearised values, and
+/// again cold (c0, ζ from the rig's, as compare starts a pasted block), the better training fit kept. Sets
 /// verified_excess, replaces the coefficients by the fitted ones (and the definition's defaults, so
 /// that a pasted block starts compare there), and withdraws the proposal (proposed = false, a note)
 /// when the fit does not pass diagnose's gain gate against `base_fit`.
