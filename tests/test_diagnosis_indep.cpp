@@ -5,6 +5,7 @@
 // mode on ridgewatch's own simulator and a record of another structure.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <numbers>
@@ -88,6 +89,27 @@ TEST(DiagnoseIndependent, MeshVariationWithoutLoadLinesIsFound) {
     }
   }
 }
+
+#ifndef RIDGEWATCH_SANITIZED
+// A model with a mesh-periodic effect keeps the impact pulse length at the rig's value during the
+// rounds (fitted from the start it is trapped); the final model frees it, from its converged fit.
+// The other generator's pulse is a Hann window where ridgewatch's is a half-sine: with the length
+// fixed this seed (bench_diagnose_sweep's seed 3) ended at 0.125, flagged unexplained, and term
+// discovery's x·cos kθ force was listed as ambiguous with the right effect. Now at the noise (< 0.1,
+// the diagnose target; the sweep's seeds 1-3 end at -0.06 … 0.012) with a pulse length inside its
+// range (0.5-2x the rig's), and the training fit no worse than the fixed-length one.
+TEST(DiagnoseIndependent, MeshVariationFinalModelFitsThePulseLength) {
+  const auto r = ig::generate(ig::short_test_record(ig::Hidden::kMeshVariationNoLines, 1.5, 3u * 104729u + 17u));
+  const auto res = one_round(r.y, paper_rig(), {"mesh_stiffness_variation"});
+  ASSERT_EQ(res.verdict, std::vector<std::string>{"mesh_stiffness_variation"});
+  EXPECT_LT(res.final_excess, 0.1);
+  EXPECT_FALSE(res.unexplained) << res.unexplained_where;
+  const auto pulse = std::find_if(res.final_fit.estimates.begin(), res.final_fit.estimates.end(),
+                                   [](const rd::ParameterEstimate& e) { return e.name == "pulse_duration_s"; });
+  ASSERT_NE(pulse, res.final_fit.estimates.end()) << "the final model's pulse length was not freed";
+  EXPECT_FALSE(pulse->at_bound);
+}
+#endif
 
 #ifndef RIDGEWATCH_SANITIZED
 // The three transmission-error cases take 1.5-3 s each here and 95-130 s each under the sanitizers;

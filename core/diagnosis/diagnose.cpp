@@ -511,6 +511,27 @@ void backward_eliminate(const ModelFitter& fitter, int round, std::vector<std::s
   }
 }
 
+/// The final model refitted with the impact pulse length free, when it has a mesh-periodic effect
+/// (whose layout leaves the length at the rig's value: fitted from a cold start it is trapped, see
+/// model_fit.cpp). Started from the converged fixed-length fit, the richer model cannot lose on the
+/// training impacts; it replaces the fit only when it also does not lose on the held-out ones. On the
+/// independent generator's stiffness variation without load lines (a Hann pulse where the model has a
+/// half-sine) the held-out excess fell from 0.06-0.13 to the noise (3 seeds).
+bool free_pulse_length(const ModelFitter& fitter, const std::vector<std::string>& model, FitResult& current,
+                       const std::function<void(const std::string&)>& progress) {
+  const bool fixed_pulse = std::none_of(current.layout.begin(), current.layout.end(),
+                                        [](const GlobalParameter& g) { return g.name == "pulse_duration_s"; });
+  const bool mesh = std::any_of(current.layout.begin(), current.layout.end(),
+                                [](const GlobalParameter& g) { return g.name == "mesh_phase_rad"; });
+  if (!fixed_pulse || !mesh) return false;
+  FitResult freed = fitter.fit(model, &current, {}, true);
+  const bool kept = freed.train_chi2 < current.train_chi2 && freed.heldout_excess <= current.heldout_excess;
+  progress("pulse length freed on the final model: held-out excess " + format_number(current.heldout_excess) + " -> " +
+           format_number(freed.heldout_excess) + (kept ? " (kept)" : " (not kept)"));
+  if (kept) current = std::move(freed);
+  return kept;
+}
+
 /// Where the unexplained residual is (words).
 std::string where_unexplained(double final_excess, const ResidualReport& current_rep) {
   std::ostringstream w;
@@ -592,6 +613,7 @@ DiagnoseResult diagnose(const ModelFitter& fitter, const std::vector<std::string
     current_rep = analyse_residual(fitter, current);
     res.rounds.push_back({model, current.heldout_excess, current.fit_percent, current_rep});
   }
+  if (free_pulse_length(fitter, model, current, progress)) current_rep = analyse_residual(fitter, current);
   res.final_excess = current.heldout_excess;
   res.final_fit_percent = current.fit_percent;
   // Unexplained: the final held-out excess is still above 0.1 (the acceptance target, ~3 standard

@@ -81,7 +81,7 @@ class ModelFitter {
   /// `y` must outlive the fitter. Throws std::invalid_argument if there are fewer than 4 windows.
   ModelFitter(std::span<const double> y, const Segmentation& seg, const model::RigParameters& rig);
 
-  std::vector<GlobalParameter> layout(const std::vector<std::string>& effects) const;
+  std::vector<GlobalParameter> layout(const std::vector<std::string>& effects, bool pulse_with_mesh = false) const;
 
   /// A parameter value given by the user (`--with NAME:key=value`, `key=value!`): a start for the
   /// optimiser, or fixed (left out of the fit; the effect keeps that value in every model).
@@ -98,8 +98,12 @@ class ModelFitter {
   /// Fits a model. `warm` (optional): a previous result whose global values (by name) and nuisances
   /// start this fit. `start_overrides`: starting values by global name (e.g. a second mode's
   /// frequency from the residual spectrum). Throws std::invalid_argument for an unknown effect.
+  /// `pulse_with_mesh`: fit the impact pulse length also when the model has a mesh-periodic effect
+  /// (left out there by default, see layout() in model_fit.cpp; diagnose frees it only from a
+  /// converged fit of that model).
   FitResult fit(const std::vector<std::string>& effects, const FitResult* warm = nullptr,
-                const std::vector<std::pair<std::string, double>>& start_overrides = {}) const;
+                const std::vector<std::pair<std::string, double>>& start_overrides = {},
+                bool pulse_with_mesh = false) const;
 
   bool is_heldout(std::size_t window) const { return window % 2 == 1; }
   const Segmentation& segmentation() const { return seg_; }
