@@ -145,7 +145,8 @@ int run_diagnose(const std::vector<std::string>& argv, std::ostream& out, std::o
 
   const std::string yaml = r.proposal.proposed ? proposal_yaml(r.proposal) : std::string();
   j["proposed"] = proposal_json(r, yaml);
-  const auto undescribed = diagnosis::description_problems(fitter, r.final_fit, r.final_report);
+  // Judged on the best description found (the discovered force when it supersedes the catalogue's).
+  const auto undescribed = diagnosis::description_problems(fitter, diagnosis::best_description(r), r.final_report);
   j["describable"] = undescribed.empty();
   j["not_describable_because"] = undescribed;
   if (const auto hist = args.value("--history")) {

@@ -156,3 +156,23 @@ TEST(TermDiscovery, CubicDampingProposalPastedMakesTheErrorFall) {
   EXPECT_LT(ex_after, 0.1);   // the acceptance target: nothing left above the noise
 }
 #endif
+
+// Whether the rig describes a record is judged on the best description diagnose found. On the
+// independent generator's cubic damping the catalogue's approximation (quadratic damping + friction)
+// drives ζ to its 1e-4 bound, and diagnose exited 3, "the rig does not describe this record", although
+// the discovered force on the starting model superseded that fit (listed as ambiguous with it) and
+// explains the record. The superseding proposal's own fit is the one judged; without the ambiguity
+// (the proposal only adds to the accepted effects) the final fit is.
+TEST(TermDiscovery, SupersedingProposalIsTheDescriptionJudged) {
+  rd::DiagnoseResult r;
+  r.verdict = {"quadratic_damping", "coulomb_friction"};
+  r.final_fit.estimates.push_back({"zeta", 1e-4, 0.0, 1e-4, 1e-4, true});
+  r.proposal.proposed = true;
+  r.proposal.definition.name = "discovered_force";
+  r.proposal.verified_fit.estimates.push_back({"zeta", 0.024, 1e-4, 0.0238, 0.0242, false});
+  EXPECT_EQ(&rd::best_description(r), &r.final_fit);
+  r.ambiguous = {"quadratic_damping", "coulomb_friction", "discovered_force"};
+  EXPECT_EQ(&rd::best_description(r), &r.proposal.verified_fit);
+  r.proposal.proposed = false;  // withdrawn by its own gate: nothing supersedes the catalogue fit
+  EXPECT_EQ(&rd::best_description(r), &r.final_fit);
+}

@@ -658,6 +658,12 @@ std::vector<std::string> description_problems(const ModelFitter& fitter, const F
   return out;
 }
 
+const FitResult& best_description(const DiagnoseResult& r) {
+  const bool superseded = r.proposal.proposed && !r.proposal.verified_fit.estimates.empty() &&
+                          std::find(r.ambiguous.begin(), r.ambiguous.end(), r.proposal.definition.name) != r.ambiguous.end();
+  return superseded ? r.proposal.verified_fit : r.final_fit;
+}
+
 std::string format_number(double value, int digits) {
   char buf[64];
   std::snprintf(buf, sizeof buf, "%.*g", digits, value);

@@ -98,6 +98,12 @@ std::vector<std::string> sensor_problems(const Segmentation& seg, double duratio
 /// `diagnose` flag these and exit 3 instead of printing numbers that mean nothing (issue 14).
 std::vector<std::string> description_problems(const ModelFitter& fitter, const FitResult& fit, const ResidualReport& rep);
 
+/// The fit that best describes the record, for description_problems: the discovered force on the
+/// starting model when it supersedes the accepted catalogue effects (they are then listed as
+/// ambiguous with it), else the final model's fit. The superseded fit can sit at a range end for that
+/// reason alone: cubic damping approximated by quadratic damping and friction drives ζ to 1e-4.
+const FitResult& best_description(const DiagnoseResult& r);
+
 /// A number with `digits` significant digits (%.*g) for evidence texts and reports.
 std::string format_number(double value, int digits = 3);
 

@@ -520,6 +520,7 @@ void verify_proposal(const ModelFitter& fitter, const FitResult& base_fit, TermD
     return;
   }
   p.verified_excess = f.heldout_excess;
+  p.verified_fit = f;
   for (auto& t : p.terms)
     for (const auto& e : f.estimates) {
       if (!t.gap_parameter.empty() && e.name == p.definition.name + "." + t.gap_parameter) {

@@ -85,6 +85,8 @@ struct TermDiscoveryResult {
   /// Set by diagnose (verify_proposal): the held-out excess of the base model plus the proposed effect
   /// fitted by the nonlinear fitter (NaN when not verified).
   double verified_excess = std::numeric_limits<double>::quiet_NaN();
+  /// Set by verify_proposal: that fit (base model plus the proposed effect; empty when not verified).
+  FitResult verified_fit;
 };
 
 /// The library terms in muparser syntax, in the order they are tried (x and v first: always kept; the
