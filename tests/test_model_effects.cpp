@@ -359,13 +359,18 @@ TEST(Effects, StepHooksDeclareEveryForceAndDampingOffset) {
       const auto effect = d.create(values, rig);
       const auto hooks = effect->step_hooks();
       for (const double t : {0.0, 0.3, 1.7, 9.0}) {
-        if (!hooks.damping_offset) EXPECT_EQ(effect->damping_ratio_offset(t), 0.0) << d.name << " t " << t;
+        if (!hooks.damping_offset) {
+          EXPECT_EQ(effect->damping_ratio_offset(t), 0.0) << d.name << " t " << t;
+        }
         for (const double x : {-2e-6, 0.0, 3e-7, 5e-6}) {
           for (const double v : {-0.02, 0.0, 0.004}) {
             const rm::MeshState s{.t_s = t, .mesh_angle_rad = 0.7 * t + x * 1e5, .x_m = x, .v_m_per_s = v,
                                   .deflection_m = 4e-6 + x, .t_since_impact_s = 0.5 * t};
-            for (const int regime : {-1, 1})
-              if (!hooks.resisting_force) EXPECT_EQ(effect->resisting_force_n(s, regime), 0.0) << d.name;
+            for (const int regime : {-1, 1}) {
+              if (!hooks.resisting_force) {
+                EXPECT_EQ(effect->resisting_force_n(s, regime), 0.0) << d.name;
+              }
+            }
           }
         }
       }
