@@ -346,3 +346,34 @@ TEST(Effects, SensorEffectsAddWhatTheySay) {
   const double hum_power = 0.5 * (0.1 * peak) * (0.1 * peak) + 0.5 * (0.05 * peak) * (0.05 * peak);
   EXPECT_NEAR(std::sqrt(ss / static_cast<double>(n) - hum_power), 0.05 * peak, 0.02 * 0.05 * peak);
 }
+
+// The integrator calls resisting_force_n and damping_ratio_offset only for effects whose step_hooks()
+// say they use them: a catalogue effect that declares a hook unused must return exactly the base
+// default there, in every regime, at any state and time (else the fast path would drop its force).
+TEST(Effects, StepHooksDeclareEveryForceAndDampingOffset) {
+  const rm::RigParameters rig;
+  for (const auto& d : rm::effect_catalogue()) {
+    for (const double where : {0.5, 1.0}) {  // halfway to and at each parameter's upper bound
+      rm::EffectValues values;
+      for (const auto& p : d.parameters) values[p.key] = p.min_value + where * (p.max_value - p.min_value);
+      const auto effect = d.create(values, rig);
+      const auto hooks = effect->step_hooks();
+      for (const double t : {0.0, 0.3, 1.7, 9.0}) {
+        if (!hooks.damping_offset) {
+          EXPECT_EQ(effect->damping_ratio_offset(t), 0.0) << d.name << " t " << t;
+        }
+        for (const double x : {-2e-6, 0.0, 3e-7, 5e-6}) {
+          for (const double v : {-0.02, 0.0, 0.004}) {
+            const rm::MeshState s{.t_s = t, .mesh_angle_rad = 0.7 * t + x * 1e5, .x_m = x, .v_m_per_s = v,
+                                  .deflection_m = 4e-6 + x, .t_since_impact_s = 0.5 * t};
+            for (const int regime : {-1, 1}) {
+              if (!hooks.resisting_force) {
+                EXPECT_EQ(effect->resisting_force_n(s, regime), 0.0) << d.name;
+              }
+            }
+          }
+        }
+      }
+    }
+  }
+}

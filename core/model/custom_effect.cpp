@@ -84,6 +84,7 @@ class CustomForce final : public Effect {
     }
     return -f;
   }
+  StepHooks step_hooks() const override { return {true, false}; }
 
  private:
   std::string name_;

@@ -91,6 +91,15 @@ class Effect {
   /// Static friction: the largest force (N) with which this effect can hold q̇ = 0 (stick).
   virtual double stick_force_limit_n() const { return 0.0; }
   virtual std::optional<AuxiliaryMode> auxiliary_mode() const { return std::nullopt; }
+  /// Which of the per-step hooks above this effect can make non-zero: the integrator's right-hand
+  /// side (core/model/mesh_dynamics.cpp, evaluated four times per RK4 step) calls only those. The
+  /// default, every hook, is always correct; an effect that overrides resisting_force_n or
+  /// damping_ratio_offset must keep that flag true (test_model_effects checks the catalogue).
+  struct StepHooks {
+    bool resisting_force = true;  ///< resisting_force_n can be non-zero
+    bool damping_offset = true;   ///< damping_ratio_offset can be non-zero
+  };
+  virtual StepHooks step_hooks() const { return {}; }
 
   // Sensor.
   /// Changes the sensor output in place (output units). `clean_peak` is max |output| before any

@@ -31,6 +31,10 @@ MeshModel::MeshModel(const RigParameters& rig, const std::vector<std::unique_ptr
     // A regime stays +1 unless the effect switches: a factor of exactly 1 there leaves the product as it is.
     if (e->has_switching() || e->mesh_force_factor(1) != 1.0) factor_effects_.push_back(i);
     stick_limit_n_ += e->stick_force_limit_n();
+    sticks_.push_back(e->stick_force_limit_n() > 0.0 ? 1 : 0);
+    const Effect::StepHooks hooks = e->step_hooks();
+    if (hooks.resisting_force) resisting_.push_back(i);
+    if (hooks.damping_offset) damping_offsets_.push_back(e);
     if (auto m = e->auxiliary_mode()) {
       has_aux_ = true;
       aux_w_ = kTwoPi * m->frequency_hz;
@@ -98,7 +102,7 @@ double MeshModel::speed_factor(double t_s) const {
 
 double MeshModel::damping_ratio(double t_s) const {
   double z = zeta_;
-  for (const Effect* e : effects_) z += e->damping_ratio_offset(t_s);
+  for (const Effect* e : damping_offsets_) z += e->damping_ratio_offset(t_s);
   return std::clamp(z, 0.0, 0.99);
 }
 
@@ -227,23 +231,24 @@ double MeshIntegrator::mesh_coordinate_force_n(double t_s, const State& s, bool 
   const MeshTerms mt = terms_at(t_s, mesh_angle_rad);
   double factor = 1.0;
   for (std::size_t i : model_.factor_effects_) factor *= effects[i]->mesh_force_factor(regimes_[i]);
-  MeshState m;
-  m.t_s = t_s;
-  m.t_since_impact_s = time_since_impact(t_s);
-  m.mesh_angle_rad = mesh_angle_rad;
-  m.x_m = s[kX];
-  m.v_m_per_s = s[kV];
-  m.deflection_m = model_.q_s_ + s[kX] + mt.e;  // δ = q_s + x + e
+  const double deflection = model_.q_s_ + s[kX] + mt.e;  // δ = q_s + x + e
   const double deflection_rate = s[kV] + mt.de * model_.teeth_ * theta_dot;
   const double damping = model_.damping_ratio(t_s) * model_.crit_;
   // Eq. A1: c_z(t) (q + e) + d_z (q̇ + ė), switched off (in part) while the teeth are separated;
   // the static deflection sees only the variation's static part (equal to Δc unless relieved).
   const double c0 = model_.c0_;
-  const double elastic = mt.dcs == mt.dc ? (c0 + mt.dc) * m.deflection_m
+  const double elastic = mt.dcs == mt.dc ? (c0 + mt.dc) * deflection
                                          : (c0 + mt.dc) * (s[kX] + mt.e) + (c0 + mt.dcs) * model_.q_s_;
   double force = model_.static_force_ + impact_force - factor * (elastic + damping * deflection_rate);
-  for (std::size_t i = 0; i < effects.size(); ++i) {
-    if (!include_stick_effects && effects[i]->stick_force_limit_n() > 0.0) continue;
+  if (model_.resisting_.empty()) return force;
+  const MeshState m{.t_s = t_s,
+                    .mesh_angle_rad = mesh_angle_rad,
+                    .x_m = s[kX],
+                    .v_m_per_s = s[kV],
+                    .deflection_m = deflection,
+                    .t_since_impact_s = time_since_impact(t_s)};
+  for (std::size_t i : model_.resisting_) {
+    if (!include_stick_effects && model_.sticks_[i]) continue;
     force -= effects[i]->resisting_force_n(m, regimes_[i]);
   }
   return force;

@@ -96,6 +96,10 @@ class MeshModel {
   std::vector<std::size_t> kinematic_;  // effects whose speed_factor can differ from 1
   std::vector<std::size_t> switching_;
   std::vector<std::size_t> factor_effects_;  // effects whose mesh_force_factor can differ from 1
+  // The right-hand side's per-step hooks, only for the effects that use them (Effect::step_hooks).
+  std::vector<std::size_t> resisting_;       // effects with a resisting force
+  std::vector<char> sticks_;                 // by effect: stick_force_limit_n() > 0
+  std::vector<const Effect*> damping_offsets_;  // effects that offset ζ
   double m_red_, c0_, zeta_, crit_, static_force_, q_s_, teeth_, pulse_s_;
   double stick_limit_n_ = 0.0;
   bool has_aux_ = false;

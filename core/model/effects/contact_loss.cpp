@@ -12,6 +12,7 @@ class ContactLoss final : public Effect {
   double mesh_force_factor(int regime) const override { return regime < 0 ? 1.0 - loss_fraction_ : 1.0; }
   bool has_switching() const override { return true; }
   double switching_function(const MeshState& s) const override { return s.deflection_m; }
+  StepHooks step_hooks() const override { return {false, false}; }
 
  private:
   double loss_fraction_;

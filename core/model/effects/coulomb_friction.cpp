@@ -13,6 +13,7 @@ class CoulombFriction final : public Effect {
   bool has_switching() const override { return true; }
   double switching_function(const MeshState& s) const override { return s.v_m_per_s; }
   double stick_force_limit_n() const override { return force_n_; }
+  StepHooks step_hooks() const override { return {true, false}; }
 
  private:
   double force_n_;

@@ -12,6 +12,7 @@ class DampingDrift final : public Effect {
   double damping_ratio_offset(double t_s) const override {
     return rate_per_s_ * t_s + (t_s >= step_time_s_ ? step_ : 0.0);
   }
+  StepHooks step_hooks() const override { return {false, true}; }
 
  private:
   double rate_per_s_, step_, step_time_s_;

@@ -23,6 +23,7 @@ class Hum final : public Effect {
     }
     return {};
   }
+  StepHooks step_hooks() const override { return {false, false}; }
 
  private:
   double amplitude_rel_, frequency_hz_, harmonic3_rel_;

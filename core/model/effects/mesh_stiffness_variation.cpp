@@ -31,6 +31,7 @@ class MeshStiffnessVariation final : public Effect {
   double static_stiffness_variation_n_per_m(double mesh_angle_rad) const override {
     return static_coupling_ == 0.0 ? 0.0 : static_coupling_ * stiffness_variation_n_per_m(mesh_angle_rad);
   }
+  StepHooks step_hooks() const override { return {false, false}; }
 
  private:
   std::vector<StiffnessHarmonic> harmonics_;

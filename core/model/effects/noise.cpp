@@ -13,6 +13,7 @@ class Noise final : public Effect {
     for (double& s : samples) s += sigma * rng.normal();
     return {};
   }
+  StepHooks step_hooks() const override { return {false, false}; }
 
  private:
   double std_rel_;

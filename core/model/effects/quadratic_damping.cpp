@@ -13,6 +13,7 @@ class QuadraticDamping final : public Effect {
   double resisting_force_n(const MeshState& s, int) const override {
     return coefficient_ * s.v_m_per_s * std::abs(s.v_m_per_s);
   }
+  StepHooks step_hooks() const override { return {true, false}; }
 
  private:
   double coefficient_;

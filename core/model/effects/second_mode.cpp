@@ -8,6 +8,7 @@ class SecondMode final : public Effect {
  public:
   explicit SecondMode(AuxiliaryMode mode) : mode_(mode) {}
   std::optional<AuxiliaryMode> auxiliary_mode() const override { return mode_; }
+  StepHooks step_hooks() const override { return {false, false}; }
 
  private:
   AuxiliaryMode mode_;

@@ -18,6 +18,7 @@ class SpeedVariation final : public Effect {
                      fluctuation_rel_ * std::sin(2.0 * std::numbers::pi * fluctuation_hz_ * t_s);
     return std::max(f, 0.05);
   }
+  StepHooks step_hooks() const override { return {false, false}; }
 
  private:
   double ramp_rel_per_s_, fluctuation_rel_, fluctuation_hz_;

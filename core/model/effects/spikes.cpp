@@ -26,6 +26,7 @@ class Spikes final : public Effect {
     }
     return times_s;
   }
+  StepHooks step_hooks() const override { return {false, false}; }
 
  private:
   double rate_per_s_, amplitude_rel_;

@@ -14,6 +14,7 @@ class StiffnessNonlinearity final : public Effect {
   double resisting_force_n(const MeshState& s, int) const override {
     return coefficient_n_per_m3_ * s.x_m * s.x_m * s.x_m;
   }
+  StepHooks step_hooks() const override { return {true, false}; }
 
  private:
   double coefficient_n_per_m3_;

@@ -25,6 +25,7 @@ class TransmissionError final : public Effect {
       de_dangle_m_per_rad += order * amplitudes_m_[k] * std::cos(angle);
     }
   }
+  StepHooks step_hooks() const override { return {false, false}; }
 
  private:
   std::array<double, 3> amplitudes_m_;
