@@ -86,7 +86,12 @@ class Broker {
     std::filesystem::create_directories(dir_);
     const auto conf = dir_ / "mosquitto.conf";
     std::ofstream(conf) << "listener " << port_ << " 127.0.0.1\nallow_anonymous true\npersistence true\n"
-                        << "persistence_location " << dir_.string() << "/\nautosave_interval 1\n"
+                        // Saved after every change (queued message, subscription), not once a second:
+                        // a killed broker loses nothing it had acknowledged to the daemon. With the
+                        // 1 s timer the messages acknowledged since the last save and not yet
+                        // delivered to a slow subscriber (a loaded ThreadSanitizer run: 35 of 755)
+                        // were lost by the broker, not by the daemon.
+                        << "persistence_location " << dir_.string() << "/\nautosave_interval 1\nautosave_on_changes true\n"
                         << "max_queued_messages 0\nlog_dest stderr\n"
                         // Started as root, mosquitto drops to user "mosquitto", which cannot write here.
                         << (::geteuid() == 0 ? "user root\n" : "");

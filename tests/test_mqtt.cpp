@@ -293,7 +293,7 @@ TEST(MqttBroker, BrokerOutageLosesNothing) {
   ASSERT_TRUE(wait_for([&] { return sub.count() >= 20; }, 10s)) << ridgewatch::test::slurp(dir / "err");
   // The broker hangs for 0.5 s (the daemon keeps publishing, ~60 events stay unacknowledged in
   // flight) and is then killed: those must be resent from the spool after the restart.
-  // The broker saves its persistence database every second (autosave_interval 1): once it holds the
+  // The broker saves its persistence database after every change (autosave_on_changes): once it holds the
   // subscriber's session, a killed broker still queues for the subscriber after the restart.
   std::this_thread::sleep_until(subscribed_at + 1500ms);
   broker.freeze_and_kill(500ms);
