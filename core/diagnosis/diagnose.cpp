@@ -524,7 +524,12 @@ bool free_pulse_length(const ModelFitter& fitter, const std::vector<std::string>
   const bool mesh = std::any_of(current.layout.begin(), current.layout.end(),
                                 [](const GlobalParameter& g) { return g.name == "mesh_phase_rad"; });
   if (!fixed_pulse || !mesh) return false;
-  FitResult freed = fitter.fit(model, &current, {}, true);
+  FitResult freed;
+  try {
+    freed = fitter.fit(model, &current, {}, true);
+  } catch (const std::domain_error&) {
+    return false;  // a user-defined force left its finite range at a pulse length tried: keep the fit
+  }
   const bool kept = freed.train_chi2 < current.train_chi2 && freed.heldout_excess <= current.heldout_excess;
   progress("pulse length freed on the final model: held-out excess " + format_number(current.heldout_excess) + " -> " +
            format_number(freed.heldout_excess) + (kept ? " (kept)" : " (not kept)"));
