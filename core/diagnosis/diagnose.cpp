@@ -519,10 +519,8 @@ void backward_eliminate(const ModelFitter& fitter, int round, std::vector<std::s
 /// half-sine) the held-out excess fell from 0.06-0.13 to the noise (3 seeds).
 bool free_pulse_length(const ModelFitter& fitter, const std::vector<std::string>& model, FitResult& current,
                        const std::function<void(const std::string&)>& progress) {
-  const bool fixed_pulse = std::none_of(current.layout.begin(), current.layout.end(),
-                                        [](const GlobalParameter& g) { return g.name == "pulse_duration_s"; });
-  const bool mesh = std::any_of(current.layout.begin(), current.layout.end(),
-                                [](const GlobalParameter& g) { return g.name == "mesh_phase_rad"; });
+  const bool fixed_pulse = find_estimate(current, "pulse_duration_s") == nullptr;
+  const bool mesh = find_estimate(current, "mesh_phase_rad") != nullptr;
   if (!fixed_pulse || !mesh) return false;
   FitResult freed;
   try {
