@@ -34,6 +34,11 @@ using simd::f64x2;
 // Stores the complex number (v[0], v[1]) with one 16-byte store (kernels::store_complex).
 inline void store_pair(cd* to, f64x2 v) { kernels::store_complex(to, v); }
 
+// t_{0.975, nu}, nu = 1..30 (standard tables, e.g. Abramowitz & Stegun Table 26.10).
+constexpr double kT95[30] = {12.7062, 4.3027, 3.1824, 2.7764, 2.5706, 2.4469, 2.3646, 2.3060, 2.2622, 2.2281,
+                             2.2010,  2.1788, 2.1604, 2.1448, 2.1314, 2.1199, 2.1098, 2.1009, 2.0930, 2.0860,
+                             2.0796,  2.0739, 2.0687, 2.0639, 2.0595, 2.0555, 2.0518, 2.0484, 2.0452, 2.0423};
+
 // Parameter layout per mode: [f_hz, ln zeta, Re C, Im C]; then residual terms [Re b, Im b] each.
 constexpr int kPerMode = 4;
 
@@ -631,6 +636,23 @@ class NormalInverse {
   }
 };
 
+}  // namespace
+
+double student_t95(int dof) {
+  if (dof < 1) return NAN;
+  if (dof <= 30) return kT95[dof - 1];
+  // Cornish-Fisher expansion about the normal quantile z (Abramowitz & Stegun 26.7.5), to 1 / nu^4:
+  // below 1e-5 of the exact value for nu > 30.
+  const double z = 1.959963984540054, z2 = z * z, nu = static_cast<double>(dof);
+  const double g1 = (z2 + 1.0) * z / 4.0;
+  const double g2 = ((5.0 * z2 + 16.0) * z2 + 3.0) * z / 96.0;
+  const double g3 = (((3.0 * z2 + 19.0) * z2 + 17.0) * z2 - 15.0) * z / 384.0;
+  const double g4 = ((((79.0 * z2 + 776.0) * z2 + 1482.0) * z2 - 1920.0) * z2 - 945.0) * z / 92160.0;
+  return z + (g1 + (g2 + (g3 + g4 / nu) / nu) / nu) / nu;
+}
+
+namespace {
+
 // Estimates from the solution x, its RSS and the normal matrix info = J^T J there, into result
 // (seg_s: the segment's duration, s).
 template <typename X, typename Info>
@@ -638,8 +660,10 @@ void report_fit(const Problem& p, const X& x, double rss, const Info& info, bool
                 const MlFitOptions& options, MlFitResult& result) {
   const int n_par = p.params();
   result.converged = converged;
-  // Covariance s^2 (J^T J)^-1 at the solution, s^2 = RSS / (values - params).
+  // Covariance s^2 (J^T J)^-1 at the solution, s^2 = RSS / (values - params); the 95 % interval of
+  // ln zeta is +-t sd with t Student's for those degrees of freedom (s^2 is estimated).
   const double s2 = rss / static_cast<double>(p.values() - n_par);
+  const double t95 = student_t95(p.values() - n_par);
   result.noise_sd = std::sqrt(2.0 * s2 / p.n_samples);  // bin component variance = N sigma^2 / 2
   // A component that does not decay within the segment (sigma T < 1e-6: a steady line fitted as a
   // mode, whose ln zeta ran off towards -infinity where the RSS no longer depends on it) has no
@@ -669,8 +693,8 @@ void report_fit(const Problem& p, const X& x, double rss, const Info& info, bool
     e.f_sd_hz = std::sqrt(var_f);
     const double sd_u = held(kPerMode * j + 1) ? NAN : std::sqrt(var_u);  // sd of ln zeta
     e.zeta_sd = e.zeta * sd_u;
-    e.zeta_ci95_lo = e.zeta * std::exp(-1.959963984540054 * sd_u);
-    e.zeta_ci95_hi = e.zeta * std::exp(1.959963984540054 * sd_u);
+    e.zeta_ci95_lo = e.zeta * std::exp(-t95 * sd_u);
+    e.zeta_ci95_hi = e.zeta * std::exp(t95 * sd_u);
     e.amplitude = std::abs(cd(x[kPerMode * j + 2], x[kPerMode * j + 3]));
     const bool sane = std::isfinite(e.f_hz) && std::isfinite(e.zeta) && e.zeta < 1.0 &&
                       e.f_hz >= options.f_lo_hz && e.f_hz <= options.f_hi_hz && std::isfinite(sd_u);

@@ -46,6 +46,13 @@ struct MlFitResult {
   std::size_t bins = 0;                ///< DFT bins used
 };
 
+/// t_{0.975, dof}: the two-sided 95 % quantile of Student's t with `dof` degrees of freedom (the
+/// fit's residual ones, 2 values per DFT bin minus the parameters); NaN for dof < 1. The 95 %
+/// intervals use it because the noise variance is estimated from the residual: with the few bins of a
+/// short low-frequency segment (6 degrees of freedom at 300 Hz in 28 ms) the normal 1.96 covers only
+/// ~90 %.
+double student_t95(int dof);
+
 /// Plans an FFT for segments of exactly `segment_samples` samples; reusable for many segments.
 class SpectralModeFitter {
  public:

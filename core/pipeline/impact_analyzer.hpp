@@ -74,7 +74,9 @@
 //     is below the gaps' floor (which holds the line). A real second mode (sim-second-mode) is fitted
 //     the same way; the cross-check below still marks such events when ridge-ls, which sees both
 //     modes, disagrees. (tests/test_pipeline_indep.cpp, 3 seeds, 861 impacts: largest |zeta error| of
-//     an ok event 8.2 %.)
+//     an ok event 6.1 %.) The 95 % intervals use Student's t quantile for the fit's residual degrees
+//     of freedom (ml_fit.hpp, student_t95): a short segment has few DFT bins and its s^2 few degrees
+//     of freedom, where the normal 1.96 covers only ~90 %.
 //     A one-mode fit that passes the precision rule can still hide a steady line within a bin of the
 //     mode (the two look like one damped sinusoid over the segment): MlStep::unresolved_component
 //     fits it with a line 1.25 bins either side; when the line is significant, unresolved, steady and
