@@ -77,9 +77,13 @@ const std::vector<CandidateSpec>& candidate_table() {
        {{"kappa", Transform::kBounded, -0.2, 5.0, 0.0}},
        {{"reference_deflection_m", 2e-6}},
        false, {}},
-      // A linear drift only; a step would need its (discontinuous) time as a parameter.
+      // A linear drift; a step in zeta as well when the user gives its time (`step_time_s=T!`): the
+      // time moves the model discontinuously (between two impacts every time gives the same model),
+      // so it is set, not fitted.
       {"damping_drift",
-       {{"rate_per_s", Transform::kBounded, -0.01, 0.01, 0.0}},
+       {{"rate_per_s", Transform::kBounded, -0.01, 0.01, 0.0},
+        {"step", Transform::kBounded, -0.5, 0.5, 0.0, false, "step_time_s"},
+        {"step_time_s", Transform::kBounded, 0.0, 1e6, 1e6, false, nullptr, true}},
        {{"step", 0.0}, {"step_time_s", 1e6}},
        false, {}},
   };

@@ -49,6 +49,12 @@ struct FreeParameter {
   /// The range's ends are values the effect physically takes (contact_loss's loss_fraction = 1:
   /// complete tooth separation), so a fit there is not "stuck at a bound" (diagnose's plausibility).
   bool bounds_attainable = false;
+  /// Fitted only when this other parameter of the same effect is fixed by the user (`--with
+  /// NAME:key=value!`): damping_drift's step is identifiable only at a known step time.
+  const char* needs_fixed = nullptr;
+  /// Never fitted, only set: a fixed user setting puts its value into the model (damping_drift's step
+  /// time moves the model discontinuously, no derivative to follow); otherwise `fixed` holds it.
+  bool set_only = false;
 };
 
 /// A diagnosable effect: which of its catalogue parameters are fitted and which are held fixed.

@@ -27,9 +27,13 @@ std::vector<GlobalParameter> ModelFitter::layout(const std::vector<std::string>&
   for (const auto& name : effects) {
     const CandidateSpec* c = find_candidate(name);
     if (c == nullptr) throw std::invalid_argument("effect '" + name + "' cannot be fitted (not a diagnosable dynamics effect)");
+    const auto fixed_by_user = [&](const std::string& key) {
+      const auto it = settings_.find(name + "." + key);
+      return it != settings_.end() && it->second.fixed;
+    };
     for (const auto& f : c->free) {
-      const auto it = settings_.find(name + "." + f.key);
-      if (it != settings_.end() && it->second.fixed) continue;
+      if (f.set_only || fixed_by_user(f.key)) continue;
+      if (f.needs_fixed != nullptr && !fixed_by_user(f.needs_fixed)) continue;
       g.push_back({name + "." + f.key, name, f.key, f.transform, f.lo, f.hi});
     }
     mesh = mesh || c->mesh_periodic;
@@ -103,6 +107,21 @@ void ModelFitter::set_parameter_settings(const std::map<std::string, ParameterSe
     }
     if (f == nullptr)
       throw std::invalid_argument("effect " + effect + ": '" + key + "' is not a fitted parameter (fitted: " + known + ")");
+    if (f->set_only && !s.fixed)
+      throw std::invalid_argument("effect " + effect + ": " + key +
+                                  " is not fitted, only set: give it with '!' (" + key + "=VALUE!)");
+    if (f->set_only) {
+      // A time in the record (s from its start) with fitted impacts on both sides; otherwise what it
+      // switches (damping_drift's step) acts on no window, or on all alike, and cannot be fitted.
+      const auto& w = seg_.windows;
+      const bool both_sides = !w.empty() && w.front().onset_s < s.value && s.value < w.back().onset_s;
+      if (!both_sides) {
+        std::ostringstream o;
+        o << "effect " << effect << ": " << key << " = " << s.value << " s is not between the first and the last fitted impact ("
+          << (w.empty() ? 0.0 : w.front().onset_s) << " .. " << (w.empty() ? 0.0 : w.back().onset_s) << " s)";
+        throw std::invalid_argument(o.str());
+      }
+    }
     const bool angle = f->transform == Transform::kAngle;
     if (!std::isfinite(s.value) || (!angle && (s.value < f->lo || s.value > f->hi))) {
       std::ostringstream o;

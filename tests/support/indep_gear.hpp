@@ -37,6 +37,7 @@ enum class Hidden {
   kDeadZone,           ///< out of catalogue: the restoring force ignores |x| < size m (x = q - q_s)
   kFrequencyDrift,     ///< out of catalogue: c0(t) = c0 (1 + size · t) (temperature)
   kTransmissionError,  ///< displacement excitation e(θ) = size sin(θ + φ) + size2 sin(2(θ + φ)) m, φ = 0.4 rad
+  kDampingStep,        ///< ζ + size from record time size2 s on (a step; step-size control finds it)
 };
 
 struct Settings {
@@ -129,6 +130,10 @@ inline Record generate(const Settings& st) {
         k = g.c0 * (1.0 + st.size * t);
         // The static deflection follows the stiffness (equilibrium q_s(t) = W / k(t)).
         f_mesh = k * q + g.d * v;
+        break;
+      case Hidden::kDampingStep:
+        zeta = g.zeta + (t - lead >= st.size2 ? st.size : 0.0);
+        f_mesh = k * q + 2.0 * zeta * std::sqrt(g.c0 * g.m) * v;
         break;
       case Hidden::kDampingDrift:
         zeta = g.zeta + st.size * t;
