@@ -26,6 +26,7 @@ constexpr double kMinRegular = 0.75;     // regular intervals, fraction
 constexpr std::size_t kMinImpacts = 4;   // 3 intervals at least
 constexpr double kMinModeFraction = 0.5; // segments with the ringing mode
 constexpr double kRetryModeFraction = 0.75; // the same on the second try over further bands (run_survey)
+constexpr double kOverlapLeft = 0.3;     // decays overlap: this much of the amplitude left at the next impact
 constexpr double kMaxEta0 = 50.0;        // the analyzer's largest eta0 (pipeline::validate)
 constexpr double kMinEta0 = 5.0;         // ... and its smallest
 
@@ -942,10 +943,10 @@ bool propose_window(Proposal& p, SurveyResult& res, double t_min, double fs) {
   if (4.5 * tau > by_period)
     p.notes.push_back("decay window capped by the impact interval: " + fmt(100 * res.decay_per_period) +
                       " % of the amplitude is left at the next impact");
-  if (res.decay_per_period > 0.3)
+  if (res.decay_per_period > kOverlapLeft)
     p.notes.push_back("the decays overlap: the next impact comes while " + fmt(100 * res.decay_per_period) +
-                      " % of the amplitude still rings; the detector (trigger ratio " + fmt(p.detector.trigger_ratio) +
-                      " in energy) may miss impacts");
+                      " % of the amplitude still rings; trigger_innovation on (the detector triggers on the jump of the band's "
+                      "complex envelope against the ringing's own continuation, not on its energy)");
   if (res.peak_abs > 1.0) {
     p.analyzer.clip_level = std::pow(10.0, std::ceil(std::log10(2 * res.peak_abs)));
     p.notes.push_back("samples exceed 1.0 (float data in physical units, no full scale): clip_level set to " +
@@ -975,6 +976,10 @@ void propose(SurveyResult& res, const std::vector<double>& x, double fs, const R
   const double t_min = final_regular.empty() ? res.period_s : quantile(final_regular, 0.05);
   p.detector.holdoff_s = 0.5 * t_min;
   propose_trigger_ratio(p, spectrum, res);
+  // Decays that overlap the next impact: trigger on the band envelope's innovation against the
+  // ringing's own continuation, not on its energy (core/pipeline/impact_detector.hpp, stage 3).
+  p.detector.trigger_innovation = res.decay_per_period > kOverlapLeft;
+  if (p.detector.trigger_innovation) p.detector.trigger_ratio = pipeline::ImpactDetectorConfig{}.trigger_ratio;
   p.analyzer.f_expected_hz = f;
   propose_eta0(p, res.modes[0], t_min);
   propose_analyzer_bands(p, res, f, fs);
