@@ -199,7 +199,8 @@ class ImpactDetector {
   /// band samples; only band samples after the chain's fill-up are used. NaN when the range is shorter
   /// than 8 samples or its overlap with those stored band samples is.
   double band_power(std::uint64_t begin, std::uint64_t end) const;
-  /// Robust noise floor: LTA (bias-corrected) of the band power.
+  /// Robust noise floor: LTA (bias-corrected) of the band power (with trigger_innovation: of the
+  /// innovation energy, the trigger statistic, which for noise alone is the band power).
   double lta() const { return band_.lta / kCapBias; }
   /// E[e] for unit-variance white input (the squared impulse responses of the whole chain, summed
   /// over the block positions): divides a band power into the white-equivalent variance of the samples.
