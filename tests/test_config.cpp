@@ -68,6 +68,7 @@ TEST(Config, ErrorsNameTheYamlPath) {
   expect_error("source:\n  alsa:\n    format: S24_3LE\n", {"source.alsa.format"});
   expect_error("source:\n  alsa:\n    channels: 2\n    channel: 2\n", {"source.alsa.channel"});
   expect_error("source:\n  replay:\n    loop: sometimes\n", {"source.replay.loop", "true or false"});
+  expect_error("pipeline:\n  detector:\n    trigger_innovation: 2\n", {"pipeline.detector.trigger_innovation", "true or false"});
   expect_error("logging:\n  level: loud\n", {"logging.level"});
   expect_error("gpio: [1, 2]\n", {"gpio", "mapping"});
   expect_error("output:\n  events: [a]\n", {"output.events", "string"});

@@ -151,15 +151,15 @@ void ImpactDetector::resum(BandState& s) const {
   const std::uint64_t have = s.m;
   const std::uint64_t pre_lo = have - std::min<std::uint64_t>(sta_d_ + pre_d_, have);
   const std::uint64_t sta_lo = have - std::min<std::uint64_t>(sta_d_, have);
-  s.sta_sum = kernels::ring_sum(e_hist_.data(), e_mask_, sta_lo, have);
-  s.pre_sum = kernels::ring_sum(e_hist_.data(), e_mask_, pre_lo, sta_lo);
+  s.sta_sum = kernels::ring_sum(th_, e_mask_, sta_lo, have);
+  s.pre_sum = kernels::ring_sum(th_, e_mask_, pre_lo, sta_lo);
 }
 
 inline void ImpactDetector::push_energy(BandState& s, double e) {
   // Band sample m = s.m into the history; running sums of the STA window [m - sta + 1, m] and the
   // pre-window before it, re-summed once per pre-window.
   const std::uint64_t m = s.m;
-  double* const eh = e_hist_.data();
+  double* const eh = th_;
   eh[m & e_mask_] = e;
   s.sta_sum += e;
   if (m >= sta_d_) {
@@ -170,6 +170,26 @@ inline void ImpactDetector::push_energy(BandState& s, double e) {
   }
   s.m = m + 1;
   if (--s.resum_left == 0) resum(s);
+}
+
+double ImpactDetector::innovation(const BandState& s, std::complex<double> z, double e) {
+  // Innovation mode (stage 3): stores band sample m = s.m's energy e for band_power() (divided by the
+  // fill-up like the energy path's) and z, and returns the trigger statistic q = |z - p z[m - k]|^2,
+  // p from the sums before this sample; then updates the sums unless frozen (as the LTA).
+  const std::uint64_t m = s.m;
+  e_hist_[m & e_mask_] = m < fill_.size() ? e / fill_[static_cast<std::size_t>(m)] : e;
+  z_hist_[m & e_mask_] = z;
+  if (m < innov_lag_d_) return e;  // nothing to predict from yet
+  const std::complex<double> zk = z_hist_[(m - innov_lag_d_) & e_mask_];
+  std::complex<double> p = innov_w_ > 0.0 ? innov_c_ / innov_w_ : std::complex<double>{};
+  const double mag = std::abs(p);
+  if (mag > 1.0) p /= mag;  // a free decay never grows
+  const double q = std::norm(z - p * zk);
+  if (m >= lta_frozen_until_) {
+    innov_c_ += lta_alpha_ * (z * std::conj(zk) - innov_c_);
+    innov_w_ += lta_alpha_ * (std::norm(zk) - innov_w_);
+  }
+  return q;
 }
 
 bool ImpactDetector::steady(const BandState& s) const {
@@ -228,11 +248,12 @@ void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
     const auto i0 = static_cast<std::size_t>(s.m % kGroup);
     const std::size_t n_chunk = std::min(kGroup - i0, count - j0);
     demodulate(x + j0 * dec_, n_chunk, i0, s.phasor);
-    bool fast = steady(s);
+    bool fast = !innov_ && steady(s);  // innovation mode: the general path only
     for (std::size_t j = 0; j < n_chunk; ++j) {
       const dsp::simd::f64x2 y =
           kernels::iq_lowpass4_step(lp, s.lp, dsp::simd::f64x2{static_cast<double>(z_re_[j]), static_cast<double>(z_im_[j])});
       double e = y[0] * y[0] + y[1] * y[1];
+      if (innov_) e = innovation(s, {y[0], y[1]}, e);
       const std::size_t sub = sub_of_[j0 + j];
       if (!(fast ? band_sample_steady(s, e) : band_sample_general(s, e, sub))) continue;
       fast = false;

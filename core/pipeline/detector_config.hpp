@@ -17,6 +17,12 @@ struct ImpactDetectorConfig {
   /// quarter of its neighbours' magnitude) while its neighbours' do not is an isolated outlier; it is
   /// replaced by the interpolation, never triggers and is reported (> 0).
   double spike_mad = 12.0;
+  /// Trigger statistic. false: the band energy e = |z|^2 of the band's complex envelope z. true: the
+  /// innovation energy |z[m] - p z[m - k]|^2, z against the continuation of its own free decay k band
+  /// samples back (p fitted to the band's recent history); an impact on a still-ringing previous
+  /// decay adds a phasor at random phase, which raises e only ~1.5-fold but makes an innovation of its
+  /// own size. For decays that overlap the next impact (impact_detector.hpp, stage 3).
+  bool trigger_innovation = false;
 };
 
 }  // namespace ridgewatch::pipeline

@@ -93,13 +93,13 @@ std::uint64_t ImpactDetector::search_floor(std::uint64_t trigger) const {
 std::uint64_t ImpactDetector::onset_estimate(std::uint64_t trigger, std::uint64_t k_peak, double* onset_d) const {
   // The last crossing of half the envelope maximum before it (not further back than the search
   // window), in fractional band samples, minus the model's 50 % rise time.
-  const double half = 0.5 * std::sqrt(e_hist_[k_peak & e_mask_]);
+  const double half = 0.5 * std::sqrt(th_[k_peak & e_mask_]);
   const std::uint64_t floor_k = search_floor(trigger);
   double crossing = static_cast<double>(floor_k);
   for (std::uint64_t k = k_peak; k > floor_k; --k) {
-    const double lo = std::sqrt(e_hist_[(k - 1) & e_mask_]);
+    const double lo = std::sqrt(th_[(k - 1) & e_mask_]);
     if (lo < half) {
-      const double hi = std::sqrt(e_hist_[k & e_mask_]);
+      const double hi = std::sqrt(th_[k & e_mask_]);
       crossing = static_cast<double>(k - 1) + (hi > lo ? (half - lo) / (hi - lo) : 0.0);
       break;
     }
@@ -112,7 +112,7 @@ std::uint64_t ImpactDetector::onset_estimate(std::uint64_t trigger, std::uint64_
 void ImpactDetector::refine_and_emit(std::uint64_t trigger, std::uint64_t end) {
   std::uint64_t k_peak = trigger;
   for (std::uint64_t k = trigger; k < end; ++k)
-    if (e_hist_[k & e_mask_] > e_hist_[k_peak & e_mask_]) k_peak = k;
+    if (th_[k & e_mask_] > th_[k_peak & e_mask_]) k_peak = k;
   double onset_d = 0.0;
   const std::uint64_t onset = onset_estimate(trigger, k_peak, &onset_d);
   holdoff_end_ = std::max<std::uint64_t>(trigger + holdoff_d_, end);

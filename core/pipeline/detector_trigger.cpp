@@ -16,7 +16,7 @@ void ImpactDetector::decide_band_sample(std::uint64_t m, double e, double mad) {
   if (confirming_) {
     ++confirm_seen_;
     if (confirm_seen_ <= confirm_d_) confirm_sum_ += e;
-    if (e > e_hist_[peak_at_ & e_mask_]) {
+    if (e > th_[peak_at_ & e_mask_]) {
       peak_at_ = m;
       peak_since_ = m;
     }
@@ -62,7 +62,7 @@ void ImpactDetector::decide_band_sample(std::uint64_t m, double e, double mad) {
     // rings from the start of the record, the filters' own switch-on transient). PRE lags its decay;
     // the lagged window, extrapolated with the model decay, is the level the transient can have now.
     double lag = 0.0;
-    for (std::size_t k = 0; k < lagw_d_; ++k) lag += e_hist_[(m - lag_d_ - k) & e_mask_];
+    for (std::size_t k = 0; k < lagw_d_; ++k) lag += th_[(m - lag_d_ - k) & e_mask_];
     // Floored by the white-noise band power (the LTA may still be too low, see the LTA update).
     rise_ref = std::min(pre, std::max(lag / static_cast<double>(lagw_d_) * lag_decay_, white_band_power(mad)));
   }
@@ -77,7 +77,7 @@ void ImpactDetector::decide_band_sample(std::uint64_t m, double e, double mad) {
     confirm_sum_ = 0.0;
     confirm_seen_ = 0;
     confirmed_ = false;
-    lta_frozen_until_ = m + std::max<std::size_t>(holdoff_d_, confirm_d_) + 1;
+    lta_frozen_until_ = m + std::max({holdoff_d_, confirm_d_, freeze_extra_d_}) + 1;
   }
 }
 

@@ -36,6 +36,12 @@ ImpactDetector::ImpactDetector(const ImpactDetectorConfig& cfg, double fs, std::
   set_windows(cfg, bw);    // stage 3-4 windows in band samples, time constants
   measure_fill_up(bw);     // noise gain and fill-up of the chain (detector_band.cpp)
   set_onset_timing(fc);    // stage 5's model and the report delay (detector_onset.cpp)
+  innov_ = cfg.trigger_innovation;
+  if (innov_) {
+    // Innovation lag k: the model's peak time + 1 ms (stage 3, innovation mode).
+    innov_lag_d_ = std::max<std::size_t>(1, static_cast<std::size_t>(std::ceil((peak_samples_ + 0.001 * fs_) / static_cast<double>(dec_))));
+    freeze_extra_d_ = 2 * innov_lag_d_;
+  }
   allocate(history_samples);
   restart(0);
 }
@@ -65,6 +71,9 @@ void ImpactDetector::allocate(std::size_t history_samples) {
   const std::uint64_t esize = std::bit_ceil(std::max<std::size_t>(hist_d, 64));
   e_hist_.assign(esize, 0.0);
   e_mask_ = esize - 1;
+  q_hist_.assign(innov_ ? esize : 0, 0.0);
+  z_hist_.assign(innov_ ? esize : 0, std::complex<double>{});
+  th_ = innov_ ? q_hist_.data() : e_hist_.data();
   hist_ = taps_ + 8;
   // Room for 16 runs after the history, the run in progress with its spike delay, and slack: finish()
   // decides up to run_ + kSpikeDelay - 1 samples and clears the two residual slots past them,
@@ -98,6 +107,8 @@ void ImpactDetector::restart(std::uint64_t first_index) {
   confirm_sum_ = 0.0;
   confirm_seen_ = 0;
   startup_ = true;
+  innov_c_ = {0.0, 0.0};
+  innov_w_ = 0.0;
 }
 
 std::uint64_t ImpactDetector::pop_onset() {

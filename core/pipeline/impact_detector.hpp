@@ -91,6 +91,18 @@
 //     constant lta_s; a cumulative mean at the start) of min(e, 3 LTA), frozen from a trigger to the end
 //     of its hold-off: an impact can raise it only slowly. For Gaussian noise the capped mean is 0.857
 //     of the power (E min(z^2, 3) = 0.857), which is divided out.
+//     Innovation mode (trigger_innovation): stages 3-5 run on q = |z[m] - p z[m - k]|^2 instead of e,
+//     z = I + iQ the band's complex envelope. A free decay of one mode in the band is z[m] = c a^m
+//     (a = r e^{i (w - w_c) / fs_d}, r = e^{-sigma / fs_d}), so z[m] = a^k z[m - k] exactly: the mode's
+//     own past predicts it. p is the least-squares fit of z[m] on z[m - k], sum z[m] conj(z[m - k]) /
+//     sum |z[m - k]|^2 as exponential means over lta_s (|p| <= 1), frozen like the LTA (and over 2 k
+//     after a trigger, so an impact's own rise does not enter it); for noise alone p ~ 0 and q ~ e.
+//     An impact at random phase on a ringing that still holds most of its amplitude raises e by
+//     (1 + |A / R|^2) on average (R the ringing's amplitude; 1.56x at 66 % left per period), but q by
+//     |A|^2 over the noise floor, whatever the phase. The lag k is the model's peak time + 1 ms in band
+//     samples (stage 5): the innovation of a new decay follows the model envelope to its maximum, so
+//     the onset refinement applies unchanged, and falls back once z[m - k] holds the new decay too.
+//     band_power() and lta() stay those of e (lta(): of q in this mode, >= the band's noise power).
 //
 //  4. Trigger when STA > trigger_ratio * max(LTA, PRE), PRE = the mean of e over the pre-window just
 //     before the STA window (one correlation time 1/B of the band's envelope, 8 ms at the defaults).
@@ -187,7 +199,8 @@ class ImpactDetector {
   /// band samples; only band samples after the chain's fill-up are used. NaN when the range is shorter
   /// than 8 samples or its overlap with those stored band samples is.
   double band_power(std::uint64_t begin, std::uint64_t end) const;
-  /// Robust noise floor: LTA (bias-corrected) of the band power.
+  /// Robust noise floor: LTA (bias-corrected) of the band power (with trigger_innovation: of the
+  /// innovation energy, the trigger statistic, which for noise alone is the band power).
   double lta() const { return band_.lta / kCapBias; }
   /// E[e] for unit-variance white input (the squared impulse responses of the whole chain, summed
   /// over the block positions): divides a band power into the white-equivalent variance of the samples.
@@ -259,6 +272,7 @@ class ImpactDetector {
   void band_blocks(std::uint64_t b, std::size_t count);
   void demodulate(const float* x, std::size_t n, std::size_t i0, std::complex<double>& phasor);
   bool band_sample_steady(BandState& s, double e);
+  double innovation(const BandState& s, std::complex<double> z, double e);
   bool band_sample_general(BandState& s, double& e, std::size_t sub);
   void push_energy(BandState& s, double e);
   void resum(BandState& s) const;
@@ -339,6 +353,17 @@ class ImpactDetector {
   BandState band_;
 
   std::vector<double> e_hist_;   // trigger-band power history, by decimated index & mask
+  // Innovation mode (stage 3): the trigger statistic's history (q; e_hist_ itself in energy mode),
+  // the band's complex envelope z by decimated index & mask, the lag k, and the running
+  // least-squares sums of the predictor p = c / w.
+  double* th_ = nullptr;
+  bool innov_ = false;
+  std::vector<double> q_hist_;
+  std::vector<std::complex<double>> z_hist_;
+  std::size_t innov_lag_d_ = 1;
+  std::size_t freeze_extra_d_ = 0;  // LTA (and predictor) freeze after a trigger beyond hold-off and confirmation
+  std::complex<double> innov_c_{0.0, 0.0};
+  double innov_w_ = 0.0;
   std::uint64_t e_mask_ = 0;
   bool lta_raised_ = false;  // the start-up raise to the white-noise band power has been done
   std::uint64_t holdoff_end_ = 0, lta_frozen_until_ = 0;

@@ -45,7 +45,8 @@
 //         floor, widened by the speed variation) within f (1 +- 0.3), at least f (1 +- 0.03);
 //       trigger_ratio = min(8 (the default), half the impacts' median STA peak over the detector's
 //         capped long-term mean in that band), at least 3; holdoff_s = 0.5 x the shortest regular
-//         interval;
+//         interval; trigger_innovation when the decays overlap (> 20 % of the amplitude left at the
+//         next impact, exp(-2 pi f zeta T));
 //       f_expected_hz = the mode's f; band_rel = 0.3, reduced to 0.6 x the relative distance of a
 //         further mode inside it (so the ridge cannot jump to it); ml_band_rel = min(0.12, band_rel,
 //         0.6 x the relative distance of the nearest line);
