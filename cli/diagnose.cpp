@@ -35,6 +35,11 @@ std::string proposal_yaml(const diagnosis::TermDiscoveryResult& p) {
   for (const auto& q : p.definition.parameters)
     y << "        " << q.key << ": {unit: \"" << q.unit << "\", min: 0, max: " << g(q.max_value, 6)
       << ", default: " << g(q.default_value, 6) << ", null: 0}\n";
+  if (!p.definition.kinks.empty()) {
+    y << "      kinks: [";
+    for (std::size_t k = 0; k < p.definition.kinks.size(); ++k) y << (k ? ", " : "") << "\"" << p.definition.kinks[k] << "\"";
+    y << "]\n";
+  }
   return y.str();
 }
 

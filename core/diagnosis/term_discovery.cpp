@@ -429,6 +429,8 @@ void build_proposal(const Problem& pr, const std::vector<std::size_t>& active, c
       b.null_value = 0.0;
       b.description = "gap of the dead-zone term (term discovery, " + format_coefficient(t.gap) + " m from the grid)";
       res.definition.parameters.push_back(b);
+      // Its kinks at x = ±b_dz, located by the integrator (a step over a kink costs RK4 its order).
+      res.definition.kinks = {"x - " + t.gap_param, "x + " + t.gap_param};
     }
   }
   res.force = force.str();
