@@ -349,7 +349,7 @@ int indep_sweep(int seeds, const std::string& only, double duration, double size
 
 /// The user-defined stiffness drift of config/examples/rig-custom-effect.yaml.
 rm::CustomEffectDefinition stiffness_drift_definition() {
-  return {"stiffness_drift", "-kd * t_abs * x", {{"kd", "N/(m s)", -1e9, 1e9, 0.0, 0.0, ""}}, {}};
+  return {"stiffness_drift", "-kd * t_abs * x", {{"kd", "N/(m s)", -1e9, 1e9, 0.0, 0.0, ""}}, {}, {}};
 }
 
 /// Out-of-catalogue effects of the independent generator diagnosed with the matching user-defined
@@ -369,7 +369,7 @@ int custom_indep(const std::string& which, int seeds) {
   } else {
     st.hidden = ig::Hidden::kCubicDamping;
     st.size = 2e9;
-    def = {"cubic_damping", "-c3 * v^3", {{"c3", "N s^3/m^3", 0.0, 1e11, 0.0, 0.0, ""}}, {}};
+    def = {"cubic_damping", "-c3 * v^3", {{"c3", "N s^3/m^3", 0.0, 1e11, 0.0, 0.0, ""}}, {}, {}};
   }
   rm::set_user_effects({{rm::make_custom_effect(def), {}}});
   for (int seed = 1; seed <= seeds; ++seed) {
@@ -504,7 +504,10 @@ int paste_sweep(int seeds, const std::string& only, double duration) {
           std::snprintf(buf, sizeof buf, "%s%.3g·%s", terms.empty() ? "" : " ", t["coefficient"].get<double>(),
                         t["term"].get<std::string>().c_str());
           terms += buf;
-          if (t["gap_m"].is_number()) terms += " (b_dz " + std::to_string(t["gap_m"].get<double>()) + " m)";
+          if (t["gap_m"].is_number()) {
+            std::snprintf(buf, sizeof buf, " (b_dz %.3g m)", t["gap_m"].get<double>());
+            terms += buf;
+          }
         }
       if (!proposed) terms = "none" + (p.is_object() ? ": " + p["note"].get<std::string>() + (terms.empty() ? "" : " [" + terms + "]") : "");
       std::string before = "-";
