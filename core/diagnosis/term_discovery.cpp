@@ -604,6 +604,20 @@ TermDiscoveryResult fit_dead_zone(const ModelFitter& fitter, const FitResult& ba
       // the force left its finite range during this fit
     }
   }
+  if (ok) {
+    // The best fit's gap and coefficient once more cold (c0, ζ and the pulse from the rig's), as
+    // compare refits the pasted block from its defaults: the multi-start's cold fits start a_dz and
+    // b_dz far from where they end, and LM can stop with c0 or the pulse length in a corner.
+    std::vector<std::pair<std::string, double>> starts;
+    for (const auto& e : best.estimates)
+      if (e.name == opt.effect_name + ".a_dz" || e.name == opt.effect_name + ".b_dz") starts.emplace_back(e.name, e.value);
+    try {
+      FitResult g = fitter.fit(effects, nullptr, starts);
+      if (g.train_chi2 < best.train_chi2) best = std::move(g);
+    } catch (const std::exception&) {
+      // keep the multi-start's fit
+    }
+  }
   model::set_user_effects(saved);
   if (!ok) {
     res.note = "the dead-zone force is not finite at the states its fits reached";
