@@ -615,7 +615,8 @@ int coverage(const std::string& which, int seeds) {
   return 0;
 }
 
-/// One record of the independent generator as a float WAV (25.6 kHz), the paste sweep's seed numbering.
+/// One record of the independent generator as a float WAV (25.6 kHz), the paste sweep's seed numbering
+/// and size factor (RW_SIZE_FACTOR).
 int write_indep_wav(const std::string& name, int seed, double duration, const std::string& out) {
   namespace ig = ridgewatch::testsupport::indep;
   for (const auto& c : ig::sweep_cases()) {
@@ -624,6 +625,7 @@ int write_indep_wav(const std::string& name, int seed, double duration, const st
     st.seed = static_cast<std::uint64_t>(seed) * 104729u + 17u;
     st.duration_s = duration;
     st.sample_rate_hz = 25600.0;
+    if (const char* f = std::getenv("RW_SIZE_FACTOR")) st.size *= std::atof(f);  // as paste
     ::indep::write_wav_mono(out, ig::generate(st).y, st.sample_rate_hz, ::indep::SampleFormat::float32);
     return 0;
   }
