@@ -48,10 +48,11 @@ model::EffectSpec read_effect(const Reader& r, const YAML::Node& node, const std
   return spec;
 }
 
-/// model.custom_effects[k]: {name, force, parameters: {key: {unit, min, max, default, null, start}}}.
+/// model.custom_effects[k]: {name, force, parameters: {key: {unit, min, max, default, null, start}},
+/// kinks: [switching function, ...]}.
 model::UserEffect read_custom_effect(const Reader& r, const YAML::Node& node, const std::string& path) {
   if (!node.IsMap()) r.fail(path, "must be a mapping with name, force and parameters");
-  r.check_map(node, path, {"name", "force", "parameters"});
+  r.check_map(node, path, {"name", "force", "parameters", "kinks"});
   model::CustomEffectDefinition def;
   for (const char* key : {"name", "force"}) {
     if (!node[key]) r.fail(path + "." + key, "missing (required)");
@@ -95,6 +96,13 @@ model::UserEffect read_custom_effect(const Reader& r, const YAML::Node& node, co
       if (keys.count("start")) def.starts[p.key] = r.number(keys["start"], ppath + ".start");
       if (keys.count("description") && keys["description"].IsScalar()) p.description = keys["description"].Scalar();
       def.parameters.push_back(p);
+    }
+  }
+  if (const YAML::Node kinks = node["kinks"]) {
+    if (!kinks.IsSequence()) r.fail(path + ".kinks", "must be a list of expressions (switching functions)");
+    for (std::size_t k = 0; k < kinks.size(); ++k) {
+      if (!kinks[k].IsScalar()) r.fail(path + ".kinks[" + std::to_string(k) + "]", "must be a string");
+      def.kinks.push_back(kinks[k].Scalar());
     }
   }
   try {

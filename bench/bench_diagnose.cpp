@@ -349,7 +349,7 @@ int indep_sweep(int seeds, const std::string& only, double duration, double size
 
 /// The user-defined stiffness drift of config/examples/rig-custom-effect.yaml.
 rm::CustomEffectDefinition stiffness_drift_definition() {
-  return {"stiffness_drift", "-kd * t_abs * x", {{"kd", "N/(m s)", -1e9, 1e9, 0.0, 0.0, ""}}, {}};
+  return {"stiffness_drift", "-kd * t_abs * x", {{"kd", "N/(m s)", -1e9, 1e9, 0.0, 0.0, ""}}, {}, {}};
 }
 
 /// Out-of-catalogue effects of the independent generator diagnosed with the matching user-defined
@@ -369,7 +369,7 @@ int custom_indep(const std::string& which, int seeds) {
   } else {
     st.hidden = ig::Hidden::kCubicDamping;
     st.size = 2e9;
-    def = {"cubic_damping", "-c3 * v^3", {{"c3", "N s^3/m^3", 0.0, 1e11, 0.0, 0.0, ""}}, {}};
+    def = {"cubic_damping", "-c3 * v^3", {{"c3", "N s^3/m^3", 0.0, 1e11, 0.0, 0.0, ""}}, {}, {}};
   }
   rm::set_user_effects({{rm::make_custom_effect(def), {}}});
   for (int seed = 1; seed <= seeds; ++seed) {
@@ -504,7 +504,10 @@ int paste_sweep(int seeds, const std::string& only, double duration) {
           std::snprintf(buf, sizeof buf, "%s%.3g·%s", terms.empty() ? "" : " ", t["coefficient"].get<double>(),
                         t["term"].get<std::string>().c_str());
           terms += buf;
-          if (t["gap_m"].is_number()) terms += " (b_dz " + std::to_string(t["gap_m"].get<double>()) + " m)";
+          if (t["gap_m"].is_number()) {
+            std::snprintf(buf, sizeof buf, " (b_dz %.3g m)", t["gap_m"].get<double>());
+            terms += buf;
+          }
         }
       if (!proposed) terms = "none" + (p.is_object() ? ": " + p["note"].get<std::string>() + (terms.empty() ? "" : " [" + terms + "]") : "");
       std::string before = "-";
@@ -612,7 +615,8 @@ int coverage(const std::string& which, int seeds) {
   return 0;
 }
 
-/// One record of the independent generator as a float WAV (25.6 kHz), the paste sweep's seed numbering.
+/// One record of the independent generator as a float WAV (25.6 kHz), the paste sweep's seed numbering
+/// and size factor (RW_SIZE_FACTOR).
 int write_indep_wav(const std::string& name, int seed, double duration, const std::string& out) {
   namespace ig = ridgewatch::testsupport::indep;
   for (const auto& c : ig::sweep_cases()) {
@@ -621,6 +625,7 @@ int write_indep_wav(const std::string& name, int seed, double duration, const st
     st.seed = static_cast<std::uint64_t>(seed) * 104729u + 17u;
     st.duration_s = duration;
     st.sample_rate_hz = 25600.0;
+    if (const char* f = std::getenv("RW_SIZE_FACTOR")) st.size *= std::atof(f);  // as paste
     ::indep::write_wav_mono(out, ig::generate(st).y, st.sample_rate_hz, ::indep::SampleFormat::float32);
     return 0;
   }

@@ -35,6 +35,11 @@ std::string proposal_yaml(const diagnosis::TermDiscoveryResult& p) {
   for (const auto& q : p.definition.parameters)
     y << "        " << q.key << ": {unit: \"" << q.unit << "\", min: 0, max: " << g(q.max_value, 6)
       << ", default: " << g(q.default_value, 6) << ", null: 0}\n";
+  if (!p.definition.kinks.empty()) {
+    y << "      kinks: [";
+    for (std::size_t k = 0; k < p.definition.kinks.size(); ++k) y << (k ? ", " : "") << "\"" << p.definition.kinks[k] << "\"";
+    y << "]\n";
+  }
   return y.str();
 }
 
@@ -69,12 +74,14 @@ void proposal_text(std::ostream& text, const diagnosis::DiagnoseResult& r, const
     text << "term discovery: nothing proposed (" << p.note << ")\n";
     return;
   }
+  // A proposal fitted directly by the nonlinear fitter (the dead-zone family) has no first-order estimate.
+  const bool direct = !p.terms.empty() && std::isnan(p.terms.front().linear_coefficient);
   text << "term discovery: a force from the term library explains the residual; held-out excess " << g(p.heldout_excess_before)
-       << " -> " << g(p.heldout_excess_after) << " to first order (gain " << g(p.heldout_gain) << ", gate "
-       << g(p.required_gain, 2) << "), " << g(p.verified_excess) << " fitted with the model\n";
+       << " -> " << g(p.heldout_excess_after) << (direct ? " fitted from each gap of the grid" : " to first order") << " (gain "
+       << g(p.heldout_gain) << ", gate " << g(p.required_gain, 2) << "), " << g(p.verified_excess) << " fitted with the model\n";
   for (const auto& t : p.terms)
-    text << "  " << t.term << ": " << g(t.coefficient, 4) << " " << t.unit << " (sd " << g(t.sd, 2) << "; first order "
-         << g(t.linear_coefficient, 3) << "), held-out gain " << g(t.heldout_loss) << " to first order"
+    text << "  " << t.term << ": " << g(t.coefficient, 4) << " " << t.unit << " (sd " << g(t.sd, 2)
+         << (direct ? std::string(")") : "; first order " + g(t.linear_coefficient, 3) + "), held-out gain " + g(t.heldout_loss) + " to first order")
          << (t.gap_parameter.empty() ? std::string() : "; gap " + t.gap_parameter + " = " + g(t.gap, 4) + " m") << "\n";
   text << "paste into the rig file (merge with an existing model: section), then run\n  ridgewatch compare --rig RIG.yaml "
        << file;

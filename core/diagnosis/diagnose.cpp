@@ -209,24 +209,39 @@ void discover_missing_force(const ModelFitter& fitter, const FitResult& start_fi
   progress("term discovery on the final model's residual");
   res.proposal = discover_terms(fitter, final_fit, options.discovery);
   verify_proposal(fitter, final_fit, res.proposal);
+  // A proposal on the starting model that explains the held-out impacts better than the accepted
+  // catalogue effects (with their own proposal, if any) supersedes them: they are listed ambiguous.
+  auto supersede = [&](TermDiscoveryResult candidate) {
+    const double now = res.proposal.proposed ? res.proposal.verified_excess : final_fit.heldout_excess;
+    if (!candidate.proposed || !(candidate.verified_excess < now)) return;
+    if (!res.verdict.empty()) {
+      std::ostringstream w;
+      std::string accepted;
+      for (const auto& e : res.verdict) accepted += (accepted.empty() ? "" : " + ") + e;
+      w << accepted << " (held-out excess " << format_number(now) << ") vs the discovered force " << candidate.force
+        << " on the starting model (" << format_number(candidate.verified_excess)
+        << "): the accepted catalogue effects approximate a force the catalogue does not have";
+      for (const auto& e : res.verdict)
+        if (std::find(res.ambiguous.begin(), res.ambiguous.end(), e) == res.ambiguous.end()) res.ambiguous.push_back(e);
+      if (std::find(res.ambiguous.begin(), res.ambiguous.end(), candidate.definition.name) == res.ambiguous.end())
+        res.ambiguous.push_back(candidate.definition.name);
+      res.ambiguous_evidence += (res.ambiguous_evidence.empty() ? "" : "; ") + w.str();
+    }
+    res.proposal = std::move(candidate);
+  };
   if (!res.verdict.empty()) {
     progress("term discovery on the starting model's residual");
     TermDiscoveryResult from_start = discover_terms(fitter, start_fit, options.discovery);
     verify_proposal(fitter, start_fit, from_start);
-    const double final_after = res.proposal.proposed ? res.proposal.verified_excess : final_fit.heldout_excess;
-    if (from_start.proposed && from_start.verified_excess < final_after) {
-      std::ostringstream w;
-      std::string accepted;
-      for (const auto& e : res.verdict) accepted += (accepted.empty() ? "" : " + ") + e;
-      w << accepted << " (held-out excess " << format_number(final_after) << ") vs the discovered force "
-        << from_start.force << " on the starting model (" << format_number(from_start.verified_excess)
-        << "): the accepted catalogue effects approximate a force the catalogue does not have";
-      for (const auto& e : res.verdict)
-        if (std::find(res.ambiguous.begin(), res.ambiguous.end(), e) == res.ambiguous.end()) res.ambiguous.push_back(e);
-      res.ambiguous.push_back(from_start.definition.name);
-      res.ambiguous_evidence += (res.ambiguous_evidence.empty() ? "" : "; ") + w.str();
-      res.proposal = std::move(from_start);
-    }
+    supersede(std::move(from_start));
+  }
+  // The dead-zone family is nonlinear in its gap: far from the linear model (a gap that moves the
+  // record by more than the first-order step reaches) it is fitted directly from each gap of its
+  // grid, when the best description so far still leaves more than the target excess.
+  const double left = res.proposal.proposed ? res.proposal.verified_excess : final_fit.heldout_excess;
+  if (left > options.discovery.direct_dead_zone_above) {
+    progress("term discovery: the dead-zone family fitted from each gap of its grid");
+    supersede(fit_dead_zone(fitter, start_fit, options.discovery));
   }
   progress(res.proposal.proposed ? "term discovery: proposed " + res.proposal.force + " (held-out excess " +
                                        format_number(res.proposal.verified_excess) + " fitted)"

@@ -429,6 +429,8 @@ void build_proposal(const Problem& pr, const std::vector<std::size_t>& active, c
       b.null_value = 0.0;
       b.description = "gap of the dead-zone term (term discovery, " + format_coefficient(t.gap) + " m from the grid)";
       res.definition.parameters.push_back(b);
+      // Its kinks at x = ±b_dz, located by the integrator (a step over a kink costs RK4 its order).
+      res.definition.kinks = {"x - " + t.gap_param, "x + " + t.gap_param};
     }
   }
   res.force = force.str();
@@ -545,6 +547,108 @@ void verify_proposal(const ModelFitter& fitter, const FitResult& base_fit, TermD
     p.note = "fitted with the nonlinear model, the proposed force gains " + format_number(gain) +
              " of held-out excess, less than the " + format_number(need, 2) + " the gate needs";
   }
+}
+
+namespace {
+
+/// The dead-zone proposal's definition: a_dz on [0, 100 c0], b_dz on [0, 100 x_rms] (both fitted on a
+/// log scale), starts a_dz = c0, b_dz = x_rms, kinks at x = ±b_dz.
+model::CustomEffectDefinition dead_zone_definition(const std::string& name, double c0, double x_rms) {
+  model::CustomEffectDefinition def;
+  def.name = name;
+  def.force = "a_dz * min(max(x, -b_dz), b_dz)";
+  def.kinks = {"x - b_dz", "x + b_dz"};
+  model::EffectParameter a{"a_dz", "N/m", 0.0, 100.0 * c0, c0, 0.0, "stiffness lost inside the gap (term discovery)"};
+  model::EffectParameter b{"b_dz", "m", 0.0, 100.0 * x_rms, x_rms, 0.0, "gap of the dead zone (term discovery)"};
+  def.parameters = {a, b};
+  return def;
+}
+
+}  // namespace
+
+TermDiscoveryResult fit_dead_zone(const ModelFitter& fitter, const FitResult& base_fit, const TermDiscoveryOptions& opt) {
+  TermDiscoveryResult res;
+  res.base_effects = base_fit.effects;
+  double c0 = fitter.rig().mean_mesh_stiffness_n_per_m;
+  for (const auto& e : base_fit.estimates)
+    if (e.name == "c0_n_per_m") c0 = e.value;
+  double x2 = 0.0, nx = 0.0;
+  for (const auto& states : fitter.linearise(base_fit).states)
+    for (const auto& st : states) {
+      x2 += st.x * st.x;
+      nx += 1.0;
+    }
+  if (!(x2 > 0.0)) {
+    res.note = "the model does not move (x is zero on every sample)";
+    return res;
+  }
+  const double x_rms = std::sqrt(x2 / nx);
+  res.definition = dead_zone_definition(opt.effect_name, c0, x_rms);
+  res.force = res.definition.force;
+  const std::vector<model::UserEffect> saved = model::user_effects();
+  std::vector<model::UserEffect> with = saved;
+  with.push_back({model::make_custom_effect(res.definition), {}});
+  model::set_user_effects(with);
+  std::vector<std::string> effects = base_fit.effects;
+  effects.push_back(opt.effect_name);
+  FitResult best;
+  bool ok = false;
+  for (int k = 0; k < kGapGrid; ++k) {
+    const std::vector<std::pair<std::string, double>> starts = {{opt.effect_name + ".a_dz", c0},
+                                                                {opt.effect_name + ".b_dz", x_rms * std::ldexp(1.0, -k)}};
+    try {
+      FitResult g = fitter.fit(effects, nullptr, starts);
+      if (!ok || g.heldout_excess < best.heldout_excess) best = std::move(g);
+      ok = true;
+    } catch (const std::exception&) {
+      // the force left its finite range during this fit
+    }
+  }
+  if (ok) {
+    // The best fit's gap and coefficient once more cold (c0, ζ and the pulse from the rig's), as
+    // compare refits the pasted block from its defaults: the multi-start's cold fits start a_dz and
+    // b_dz far from where they end, and LM can stop with c0 or the pulse length in a corner.
+    std::vector<std::pair<std::string, double>> starts;
+    for (const auto& e : best.estimates)
+      if (e.name == opt.effect_name + ".a_dz" || e.name == opt.effect_name + ".b_dz") starts.emplace_back(e.name, e.value);
+    try {
+      FitResult g = fitter.fit(effects, nullptr, starts);
+      if (g.train_chi2 < best.train_chi2) best = std::move(g);
+    } catch (const std::exception&) {
+      // keep the multi-start's fit
+    }
+  }
+  model::set_user_effects(saved);
+  if (!ok) {
+    res.note = "the dead-zone force is not finite at the states its fits reached";
+    return res;
+  }
+  DiscoveredTerm t{"min(max(x, -b_dz), b_dz)", "a_dz", "N/m", 0.0, 0.0, 0.0,
+                   std::numeric_limits<double>::quiet_NaN(), "b_dz", 0.0};
+  for (const auto& e : best.estimates) {
+    if (e.name == opt.effect_name + ".a_dz") {
+      t.coefficient = e.value;
+      t.sd = e.sd;
+      res.definition.parameters[0].default_value = e.value;
+    }
+    if (e.name == opt.effect_name + ".b_dz") {
+      t.gap = e.value;
+      res.definition.parameters[1].default_value = e.value;
+    }
+  }
+  res.heldout_excess_before = base_fit.heldout_excess;
+  res.heldout_excess_after = res.verified_excess = best.heldout_excess;
+  res.heldout_gain = t.heldout_loss = base_fit.heldout_excess - best.heldout_excess;
+  res.required_gain =
+      3.0 * std::sqrt(2.0 / std::max(1.0, best.heldout_n)) * (1.0 + std::max(0.0, best.heldout_excess));
+  res.terms = {t};
+  res.verified_fit = std::move(best);
+  res.proposed = res.heldout_gain > res.required_gain;
+  res.note = res.proposed ? "the dead-zone family fitted by the nonlinear fitter from each gap of the grid"
+                          : "the dead-zone force fitted from each gap of the grid gains " + format_number(res.heldout_gain) +
+                                " of held-out excess, less than the " + format_number(res.required_gain, 2) +
+                                " the gate needs";
+  return res;
 }
 
 }  // namespace ridgewatch::diagnosis

@@ -53,6 +53,9 @@ struct TermDiscoveryOptions {
   double term_gate_se = 3.0;
   /// Mesh orders k of the x·cos kθ, x·sin kθ, v·cos kθ, v·sin kθ terms.
   int mesh_orders = 3;
+  /// diagnose fits the dead-zone family directly (fit_dead_zone) when the best description found
+  /// leaves a held-out excess above this: the project's accuracy target, 0.1.
+  double direct_dead_zone_above = 0.1;
   /// Name of the proposed user-defined effect.
   std::string effect_name = "discovered_force";
 };
@@ -106,5 +109,16 @@ TermDiscoveryResult discover_terms(const ModelFitter& fitter, const FitResult& f
 /// that a pasted block starts compare there), and withdraws the proposal (proposed = false, a note)
 /// when the fit does not pass diagnose's gain gate against `base_fit`.
 void verify_proposal(const ModelFitter& fitter, const FitResult& base_fit, TermDiscoveryResult& proposal);
+
+/// The dead-zone family fitted by the nonlinear fitter directly (no first-order step): when a gap
+/// moves the record far from the linear model, one Gauss–Newton step from it picks the wrong gap and
+/// coefficient. `base_fit`'s model plus a_dz · min(max(x, -b_dz), b_dz) (kinks at x = ±b_dz declared,
+/// so the integrator locates them) is fitted from a_dz = c0 (no dynamic force inside the gap) and
+/// each gap of the discovery grid b = x_rms · 2^-k, k = 0..4, cold (c0, ζ from the rig's, as compare
+/// starts a pasted block); the fit with the lowest held-out excess is kept. Returns a verified
+/// proposal (verified_excess, verified_fit set) or, when no fit passes diagnose's gain gate against
+/// `base_fit`, proposed = false with a note. The thread's user effects are restored.
+TermDiscoveryResult fit_dead_zone(const ModelFitter& fitter, const FitResult& base_fit,
+                                  const TermDiscoveryOptions& options = {});
 
 }  // namespace ridgewatch::diagnosis

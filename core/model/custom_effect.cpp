@@ -70,9 +70,11 @@ class Expression {
 
 class CustomForce final : public Effect {
  public:
-  CustomForce(std::string name, const std::string& text, const std::vector<EffectParameter>& params,
-              const EffectValues& values)
-      : name_(std::move(name)), expr_(text, params, values) {}
+  CustomForce(std::string name, const std::string& text, const std::vector<std::string>& kinks,
+              const std::vector<EffectParameter>& params, const EffectValues& values)
+      : name_(std::move(name)), expr_(text, params, values) {
+    for (const auto& k : kinks) kinks_.push_back(std::make_unique<Expression>(k, params, values));
+  }
   // The user's force is added to the mesh force; the simulator subtracts resisting forces.
   double resisting_force_n(const MeshState& s, int) const override {
     const double f = expr_.eval(s.x_m, s.v_m_per_s, s.mesh_angle_rad, s.t_since_impact_s, s.t_s);
@@ -85,11 +87,66 @@ class CustomForce final : public Effect {
     return -f;
   }
   StepHooks step_hooks() const override { return {true, false}; }
+  bool has_switching() const override { return !kinks_.empty(); }
+  // One switching function for all kinks: the product of their signs times the smallest magnitude.
+  // Its sign changes whenever one of them changes sign (one at a time), and near that zero it equals
+  // ± that function, smooth within a regime, as the integrator's regula falsi needs.
+  double switching_function(const MeshState& s) const override {
+    double sign = 1.0, smallest = INFINITY;
+    for (const auto& k : kinks_) {
+      const double g = k->eval(s.x_m, s.v_m_per_s, s.mesh_angle_rad, s.t_since_impact_s, s.t_s);
+      if (g < 0.0) sign = -sign;
+      smallest = std::min(smallest, std::abs(g));
+    }
+    return sign * smallest;
+  }
 
  private:
   std::string name_;
   Expression expr_;
+  std::vector<std::unique_ptr<Expression>> kinks_;  // Expression is not movable: held by pointer
 };
+
+/// Compiles `text` (the force or a kink's switching function) with each parameter set and evaluates it
+/// on a grid of states spanning a typical free response of the paper's rig (x up to 1e-5 m, v up to
+/// 0.05 m/s, both signs and zero, two mesh angles, two times). Throws through `fail(where, what, col)`.
+template <typename Fail>
+void check_expression(const std::string& text, const std::string& where, const std::vector<EffectParameter>& params,
+                      const std::vector<EffectValues>& sets, const Fail& fail) {
+  if (text.find_first_not_of(" \t\n") == std::string::npos) fail(where, "empty expression", 0);
+  for (const auto& values : sets) {
+    try {
+      const Expression e(text, params, values);
+      for (double x : {-1e-5, 0.0, 1e-5})
+        for (double v : {-0.05, 0.0, 0.05})
+          for (double th : {0.0, 2.0})
+            for (double t : {0.0, 0.01}) {
+              const double f = e.eval(x, v, th, t, t + 1.0);
+              if (!std::isfinite(f)) {
+                std::ostringstream o;
+                o << "'" << text << "' is not finite (" << f << ") at x = " << x << ", v = " << v << ", theta = " << th
+                  << ", t = " << t << " with";
+                for (const auto& [k, val] : values) o << " " << k << " = " << val;
+                fail(where, o.str(), 0);
+              }
+            }
+    } catch (const mu::Parser::exception_type& e) {
+      // muparser's positions are 0-based character offsets into the expression.
+      const int col = e.GetPos() >= 0 ? e.GetPos() + 1 : 0;
+      std::ostringstream o;
+      o << "'" << text << "'";
+      if (col > 0) o << " at column " << col;
+      if (!e.GetToken().empty()) o << " ('" << e.GetToken() << "')";
+      o << ": " << e.GetMsg();
+      if (e.GetCode() == mu::ecUNASSIGNABLE_TOKEN) {
+        o << " (variables: x, v, theta, t, t_abs; parameters:";
+        for (const auto& p : params) o << " " << p.key;
+        o << ")";
+      }
+      fail(where, o.str(), col);
+    }
+  }
+}
 
 }  // namespace
 
@@ -124,61 +181,30 @@ EffectDescriptor make_custom_effect(const CustomEffectDefinition& def) {
     if (!(value >= p->min_value && value <= p->max_value))
       fail("parameters." + key, "start " + num(value) + " is outside [" + num(p->min_value) + ", " + num(p->max_value) + "]");
   }
-  if (def.force.find_first_not_of(" \t\n") == std::string::npos) fail("force", "empty expression");
-
   // Compile and evaluate on a grid of states: the parameters at their defaults, then all at their
-  // minima, then all at their maxima. The states span a typical free response of the paper's rig
-  // (x up to 1e-5 m, v up to 0.05 m/s) with both signs and zero, two mesh angles and two times.
+  // minima, then all at their maxima.
   std::vector<EffectValues> sets(3);
   for (const auto& p : def.parameters) {
     sets[0][p.key] = p.default_value;
     sets[1][p.key] = p.min_value;
     sets[2][p.key] = p.max_value;
   }
-  for (const auto& values : sets) {
-    try {
-      const Expression e(def.force, def.parameters, values);
-      for (double x : {-1e-5, 0.0, 1e-5})
-        for (double v : {-0.05, 0.0, 0.05})
-          for (double th : {0.0, 2.0})
-            for (double t : {0.0, 0.01}) {
-              const double f = e.eval(x, v, th, t, t + 1.0);
-              if (!std::isfinite(f)) {
-                std::ostringstream o;
-                o << "'" << def.force << "' is not finite (" << f << ") at x = " << x << ", v = " << v << ", theta = " << th
-                  << ", t = " << t << " with";
-                for (const auto& [k, val] : values) o << " " << k << " = " << val;
-                fail("force", o.str());
-              }
-            }
-    } catch (const mu::Parser::exception_type& e) {
-      // muparser's positions are 0-based character offsets into the expression.
-      const int col = e.GetPos() >= 0 ? e.GetPos() + 1 : 0;
-      std::string msg = e.GetMsg();
-      std::ostringstream o;
-      o << "'" << def.force << "'";
-      if (col > 0) o << " at column " << col;
-      if (!e.GetToken().empty()) o << " ('" << e.GetToken() << "')";
-      o << ": " << msg;
-      if (e.GetCode() == mu::ecUNASSIGNABLE_TOKEN) {
-        o << " (variables: x, v, theta, t, t_abs; parameters:";
-        for (const auto& p : def.parameters) o << " " << p.key;
-        o << ")";
-      }
-      fail("force", o.str(), col);
-    }
-  }
+  check_expression(def.force, "force", def.parameters, sets, fail);
+  for (std::size_t k = 0; k < def.kinks.size(); ++k)
+    check_expression(def.kinks[k], "kinks[" + std::to_string(k) + "]", def.parameters, sets, fail);
 
   EffectDescriptor d;
   d.name = def.name;
   d.kind = EffectKind::kDynamics;
   d.explanation = "user-defined force on the mesh coordinate: " + def.force + " (N)";
+  for (const auto& k : def.kinks) d.explanation += "; kink where " + k + " = 0";
   d.signature = "defined by its expression";
   d.parameters = def.parameters;
   const std::string name = def.name, text = def.force;
+  const std::vector<std::string> kinks = def.kinks;
   const std::vector<EffectParameter> params = def.parameters;
-  d.create = [name, text, params](const EffectValues& values, const RigParameters&) -> std::unique_ptr<Effect> {
-    return std::make_unique<CustomForce>(name, text, params, values);
+  d.create = [name, text, kinks, params](const EffectValues& values, const RigParameters&) -> std::unique_ptr<Effect> {
+    return std::make_unique<CustomForce>(name, text, kinks, params, values);
   };
   return d;
 }

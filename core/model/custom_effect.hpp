@@ -28,6 +28,11 @@ struct CustomEffectDefinition {
   std::string force;       ///< expression, N, added to the mesh force (negative opposes motion)
   std::vector<EffectParameter> parameters;
   EffectValues starts;     ///< optional optimiser starts for diagnose/compare, by key
+  /// Optional switching functions (expressions in the same variables and parameters) whose zeros are
+  /// the force's kinks, e.g. "x - b_dz" and "x + b_dz" for min(max(x, -b_dz), b_dz). The integrator
+  /// locates a sign change of any of them within an RK4 step and restarts the step there, as it does
+  /// for the catalogue's regime changes, instead of stepping over the kink.
+  std::vector<std::string> kinks;
 };
 
 /// A definition that does not compile or check. `where` is the part of the definition at fault
@@ -47,10 +52,10 @@ class CustomEffectError : public std::invalid_argument {
 /// The expression variables, in the order documented above.
 const std::vector<std::string>& custom_effect_variables();
 
-/// Checks the definition (names, bounds), compiles the expression (syntax, unknown names) and
-/// evaluates it on a grid of states with the parameters at their defaults and at their bounds (a
-/// non-finite value is an error). Returns a dynamics descriptor whose effect adds the force.
-/// Throws CustomEffectError naming the effect, the part at fault and the column.
+/// Checks the definition (names, bounds), compiles the expression and the kinks' switching functions
+/// (syntax, unknown names) and evaluates them on a grid of states with the parameters at their
+/// defaults and at their bounds (a non-finite value is an error). Returns a dynamics descriptor whose effect adds the force.
+/// Throws CustomEffectError naming the effect, the part at fault ("force", "kinks[1]", ...) and the column.
 EffectDescriptor make_custom_effect(const CustomEffectDefinition& definition);
 
 }  // namespace ridgewatch::model
