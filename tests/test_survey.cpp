@@ -50,16 +50,25 @@ TEST(SpectralKurtosis, SteadyLineIsMinusOneAndNoiseIsZero) {
   EXPECT_NEAR(ridgewatch::survey::spectral_kurtosis(bursts), 18.0, 1e-9);
 }
 
-// Acceptance figures of issue 19 for one record (its outcome into *out when given).
-void expect_accepted(const survey_cases::Case& c, survey_cases::Outcome* out = nullptr) {
-  SCOPED_TRACE(survey_cases::describe(c));
-  const auto o = survey_cases::run_case(c, temp_dir("acc"));
-  if (out) *out = o;
+// The acceptance figures of the proposal and the detection for one record (outcome into o): a
+// proposal, f within 1 %, >= 97 % of the impacts found, none false.
+void expect_proposed_and_found(const survey_cases::Case& c, const std::string& dir_name, survey_cases::Outcome& o) {
+  o = survey_cases::run_case(c, temp_dir(dir_name));
   ASSERT_TRUE(o.proposal) << o.survey_text;
   EXPECT_NEAR(o.f_expected_hz / c.f_hz, 1.0, 0.01);                                      // within 1 %
   EXPECT_GE(static_cast<double>(o.found), 0.97 * static_cast<double>(o.truth)) << o.analyze_err;  // >= 97 %
   EXPECT_EQ(o.false_events, 0u);
-  EXPECT_LE(o.median_zeta_err, 0.02);                                                    // median <= 2 %
+}
+
+// Acceptance figures of issue 19 for one record (its outcome into *out when given).
+void expect_accepted(const survey_cases::Case& c, survey_cases::Outcome* out = nullptr) {
+  SCOPED_TRACE(survey_cases::describe(c));
+  survey_cases::Outcome o;
+  expect_proposed_and_found(c, "acc", o);
+  if (out) *out = o;
+  if (o.proposal) {
+    EXPECT_LE(o.median_zeta_err, 0.02);  // median <= 2 %
+  }
 }
 
 TEST(SurveyAcceptance, PaperLikeRigInt16) {
@@ -160,11 +169,8 @@ TEST(SurveyAcceptance, ShortDecayAtEightKilohertzGetsAProposal) {
   survey_cases::Case c = survey_cases::sweep_case(8000, 5, 0.05, 1, 88);
   ASSERT_EQ(c.seed, 188u);
   SCOPED_TRACE(survey_cases::describe(c));
-  const auto o = survey_cases::run_case(c, temp_dir("short"));
-  ASSERT_TRUE(o.proposal) << o.survey_text;
-  EXPECT_NEAR(o.f_expected_hz / c.f_hz, 1.0, 0.01);                                      // within 1 %
-  EXPECT_GE(static_cast<double>(o.found), 0.97 * static_cast<double>(o.truth)) << o.analyze_err;  // >= 97 %
-  EXPECT_EQ(o.false_events, 0u);
+  survey_cases::Outcome o;
+  ASSERT_NO_FATAL_FAILURE(expect_proposed_and_found(c, "short", o));
   // `ok` is a promise: each ok zeta within 25 % of the truth (the per-impact spread of a 0.4 ms decay
   // is several %; 25 % catches a fit to noise or to a mesh line, which reads zeta 2-10x off).
   for (double z : o.ok_zeta) EXPECT_NEAR(z / c.zeta, 1.0, 0.25);
@@ -191,6 +197,44 @@ TEST(SurveyAcceptance, LowModeAtTwentyFivePerSecondGetsAProposalWithALowerEta0) 
   // fit to a mesh line or to noise.
   EXPECT_GE(o.ok, 3u);
   for (double z : o.ok_zeta) EXPECT_NEAR(z / c.zeta, 1.0, 0.10);
+}
+#endif
+
+#ifndef RIDGEWATCH_SANITIZED
+TEST(SurveyAcceptance, LowWellDampedModeBesideAMeshLineGetsAProposal) {
+  // 300 Hz, zeta 0.05 (time constant 10.6 ms) at 5/s, the 22-tooth mesh at 110/220 Hz (15 % of the
+  // impact at 220 Hz, 27 % below the mode), locked to the impacts: over the whole range the mode was
+  // ok in fewer than half of the free responses (ridge drawn to the line at eta0 7, free responses
+  // cut to 50 ms): no proposal. The search focused on the candidate finds it in most of them.
+  // The sweep's record (bench_survey sweep 3 300 5 0.05, 25.6 kHz int16 ramp, 25 dB).
+  survey_cases::Case c = survey_cases::sweep_case(300, 5, 0.05, 2, 8);
+  ASSERT_EQ(c.seed, 108u);
+  SCOPED_TRACE(survey_cases::describe(c));
+  survey_cases::Outcome o;
+  ASSERT_NO_FATAL_FAILURE(expect_proposed_and_found(c, "mesh", o));
+  // The survey's own zeta (median over the free responses) sizes the window: within 10 % (it reads
+  // 0.0502; the broadband search's ok members scattered 0.039-0.055).
+  const auto j = nlohmann::json::parse(o.survey_text);
+  EXPECT_NEAR(j["modes"][0]["zeta"].get<double>() / c.zeta, 1.0, 0.10);
+  // `ok` is a promise: each ok zeta within 15 % (25 dB: a few % per decay; a fit drawn to the
+  // 220 Hz line read 16 % high).
+  for (double z : o.ok_zeta) EXPECT_NEAR(z / c.zeta, 1.0, 0.15);
+}
+
+TEST(SurveyAcceptance, SpeedWobbleDoesNotHideTheRate) {
+  // 8 kHz, zeta 0.01 at 25/s under a +-5 % wobble of 1 s: the band envelope's autocorrelation peaks
+  // highest near the wobble's period, and its 1/8 (120 ms) was taken for the period: 51 % of the
+  // intervals regular, no proposal. The shortest sub-multiple (40 ms) passes the train test.
+  // The sweep's record (bench_survey sweep 3 8000 25 0.01, 51.2 kHz float wobble, 25 dB).
+  survey_cases::Case c = survey_cases::sweep_case(8000, 25, 0.01, 2, 95);
+  ASSERT_EQ(c.seed, 195u);
+  ASSERT_TRUE(c.wobble);
+  SCOPED_TRACE(survey_cases::describe(c));
+  survey_cases::Outcome o;
+  ASSERT_NO_FATAL_FAILURE(expect_proposed_and_found(c, "wobble", o));
+  EXPECT_NEAR(nlohmann::json::parse(o.survey_text)["impacts"]["rate_hz"].get<double>(), 25.0, 1.25);  // the mean rate, +-5 %
+  // `ok` is a promise: each ok zeta within 15 % (25 dB, 2 ms decays: a few % each).
+  for (double z : o.ok_zeta) EXPECT_NEAR(z / c.zeta, 1.0, 0.15);
 }
 #endif
 

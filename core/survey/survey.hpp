@@ -13,7 +13,8 @@
 //  2. Band envelope e = |c|^2 of that band (band_envelope.hpp), averaged into bins of ~0.25 ms:
 //     its normalised autocorrelation r(tau) over lags 1/max_rate .. min(1/min_rate, T/2.5), the
 //     highest peak of the envelope smoothed over 0.6 / max_rate (or its shortest sub-multiple standing
-//     >= 40 % as high) is the impact period;
+//     >= 40 % as high; when the train tests fail with it, the shortest sub-multiple of any order) is
+//     the impact period;
 //     the envelope spectrum (|DFT of e - mean|) shows the rate and its harmonics.
 //  3. Impacts: maxima of e that dominate +-0.45 periods and exceed a fifth of the median such
 //     maximum; when no candidate band forms a train so, a fifth of the typical impact's height, the
@@ -33,7 +34,10 @@
 //     resonance, and the ringing mode is the decaying one). Modes of all segments are
 //     clustered (+-1.5 % in f); the cluster found in the most segments with status ok is the
 //     ringing mode: median f, median zeta and the zeta quartiles. Other clusters found in >= half
-//     the segments are listed as further modes.
+//     the segments are listed as further modes. When no cluster is ok in half of them, the search is
+//     repeated for up to three candidates (modes detected whatever their status) in the candidate's
+//     band f (1 +- 0.15), kept clear of stationary lines, with tau from that band's power and eta0
+//     raised against the lines' leakage (focused_look in survey.cpp).
 //  5. Decision "repeated impacts": all of SK z >= 8 (a burst band, not noise or lines), r(T) >= 0.2
 //     (periodic bursts), contrast >= 10 (bursts stand 10 dB above the floor), >= 4 impacts with
 //     >= 75 % of the intervals regular, and the ringing mode in >= half of the analysed segments (a
