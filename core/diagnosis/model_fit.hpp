@@ -14,7 +14,9 @@
 //
 // Folds: windows alternate training (even index) / held-out (odd). Training fit: globals and the
 // training nuisances on training rows (held-out nuisances stay at their initial values; they reach the
-// training rows only through the small carried tail). Held-out: globals frozen, all nuisances refitted
+// training rows only through the small carried tail; with dry friction that tail is an offset in the
+// friction band, as large as a few % of the response, and the held-out nuisances are fitted too,
+// through the training rows only). Held-out: globals frozen, all nuisances refitted
 // window by window in time order (each on its own rows, with its predecessor's final tail carried in),
 // the error reported on held-out rows only.
 #pragma once
