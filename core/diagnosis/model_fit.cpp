@@ -88,6 +88,10 @@ PhysicsValues ModelFitter::physics(const std::vector<GlobalParameter>& layout, c
   return p;
 }
 
+bool ModelFitter::frees_heldout_nuisances(const FitResult& f) const {
+  return friction_carry_fit_ && WindowSimulator(rig_, physics(f.layout, f.params.u), seg_.sample_rate_hz).has_dry_friction();
+}
+
 void ModelFitter::set_parameter_settings(const std::map<std::string, ParameterSetting>& settings) {
   for (const auto& [name, s] : settings) {
     const auto dot = name.find('.');
@@ -777,7 +781,7 @@ FitResult ModelFitter::fit(const std::vector<std::string>& effects, const FitRes
   // ridgewatch's own simulator; at the true held-out nuisances the same fit lands on the truth.
   // Their rows stay held out, so the held-out judgement is unchanged; they reach the training
   // rows only through the carried state.
-  const bool free_heldout = WindowSimulator(rig_, physics(L, p.u), seg_.sample_rate_hz).has_dry_friction();
+  const bool free_heldout = friction_carry_fit_ && WindowSimulator(rig_, physics(L, p.u), seg_.sample_rate_hz).has_dry_friction();
   for (std::size_t w = 0; w < nw; ++w) {
     if (!is_heldout(w)) train.row_windows.push_back(w);
     if (!is_heldout(w) || free_heldout) train.free_windows.push_back(w);
