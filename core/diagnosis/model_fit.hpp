@@ -14,7 +14,9 @@
 //
 // Folds: windows alternate training (even index) / held-out (odd). Training fit: globals and the
 // training nuisances on training rows (held-out nuisances stay at their initial values; they reach the
-// training rows only through the small carried tail). Held-out: globals frozen, all nuisances refitted
+// training rows only through the small carried tail; with dry friction that tail is an offset in the
+// friction band, as large as a few % of the response, and the held-out nuisances are fitted too,
+// through the training rows only). Held-out: globals frozen, all nuisances refitted
 // window by window in time order (each on its own rows, with its predecessor's final tail carried in),
 // the error reported on held-out rows only.
 #pragma once
@@ -94,6 +96,13 @@ class ModelFitter {
   /// effect that is in every model fitted afterwards (the starting model: diagnose never removes it).
   void set_parameter_settings(const std::map<std::string, ParameterSetting>& settings);
   const std::map<std::string, ParameterSetting>& parameter_settings() const { return settings_; }
+  /// Dry friction: the training fit also fits the held-out windows' nuisances (through the carried
+  /// stuck offset only, see fit()); without it force_n and ζ come out ~5 sd off. On by default;
+  /// diagnose screens its candidates with it off (a friction fit costs about twice as much with it,
+  /// the choice of effects does not depend on it) and refits its final model with it on.
+  void set_friction_carry_fit(bool on) { friction_carry_fit_ = on; }
+  /// Whether fit() frees the held-out nuisances for the model of `f` (it has dry friction).
+  bool frees_heldout_nuisances(const FitResult& f) const;
 
   /// Fits a model. `warm` (optional): a previous result whose global values (by name) and nuisances
   /// start this fit. `start_overrides`: starting values by global name (e.g. a second mode's
@@ -162,6 +171,7 @@ class ModelFitter {
   Segmentation seg_;
   model::RigParameters rig_;
   std::map<std::string, ParameterSetting> settings_;
+  bool friction_carry_fit_ = true;
 };
 
 }  // namespace ridgewatch::diagnosis
