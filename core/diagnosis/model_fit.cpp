@@ -467,34 +467,57 @@ struct WindowProblem {
   Eigen::Index rows = 0;
   double inv_sigma = 1.0;
   mutable std::vector<double> m;
+  // The output at the point of the latest residual evaluation: LM evaluates a point and then its
+  // Jacobian there, and the refit ends with the output at its final point (compared exactly).
+  mutable bool cached = false;
+  mutable double cached_ln_force = 0.0, cached_shift = 0.0;
+  mutable std::vector<double> cached_out;
+  mutable WindowSimulator::End cached_end;
 
   int inputs() const { return 2; }
   int values() const { return static_cast<int>(rows); }
-  void residual(double ln_force, double shift, double* dst) const {
+  /// Model output of window w at the nuisances (ln F, onset shift in samples).
+  void simulate(double ln_force, double shift, std::vector<double>& out, WindowSimulator::End& end) const {
     const double keep_f = p->ln_force[w], keep_s = p->shift[w];
     p->ln_force[w] = ln_force;
     p->shift[w] = shift;
-    WindowSimulator::End end;
-    fitter->simulate_window(*sim, w, *p, carried, m, end);
+    fitter->simulate_window(*sim, w, *p, carried, out, end);
     p->ln_force[w] = keep_f;
     p->shift[w] = keep_s;
+  }
+  /// simulate at the point of the latest call, or the cached output if it is the same point.
+  const std::vector<double>& output_at(double ln_force, double shift, WindowSimulator::End& end) const {
+    if (!cached || ln_force != cached_ln_force || shift != cached_shift) {
+      simulate(ln_force, shift, cached_out, cached_end);
+      cached_ln_force = ln_force;
+      cached_shift = shift;
+      cached = true;
+    }
+    end = cached_end;
+    return cached_out;
+  }
+  void residual(const std::vector<double>& out, double* dst) const {
     const auto& win = fitter->segmentation().windows[w];
     const auto y = fitter->data();
     const auto& wt = fitter->segmentation().weight;
-    for (std::size_t i = 0; i < m.size(); ++i) dst[i] = wt[win.begin + i] * (y[win.begin + i] - m[i]) * inv_sigma;
+    for (std::size_t i = 0; i < out.size(); ++i) dst[i] = wt[win.begin + i] * (y[win.begin + i] - out[i]) * inv_sigma;
   }
   int operator()(const Eigen::VectorXd& x, Eigen::VectorXd& f) const {
-    residual(x[0], x[1], f.data());
+    WindowSimulator::End end;
+    residual(output_at(x[0], x[1], end), f.data());
     return 0;
   }
   int df(const Eigen::VectorXd& x, Eigen::MatrixXd& J) const {
     // Forward differences with the steps of FitProblem::df (1e-6 in ln F, 1e-4 samples of onset).
     Eigen::VectorXd f0(rows), f1(rows);
-    residual(x[0], x[1], f0.data());
+    WindowSimulator::End end;
+    residual(output_at(x[0], x[1], end), f0.data());
     J.resize(rows, 2);
-    residual(x[0] + 1e-6, x[1], f1.data());
+    simulate(x[0] + 1e-6, x[1], m, end);
+    residual(m, f1.data());
     J.col(0) = (f1 - f0) / 1e-6;
-    residual(x[0], x[1] + 1e-4, f1.data());
+    simulate(x[0], x[1] + 1e-4, m, end);
+    residual(m, f1.data());
     J.col(1) = (f1 - f0) / 1e-4;
     return 0;
   }
@@ -602,12 +625,11 @@ void ModelFitter::restart_bad_windows(FitProblem& train, FitParams& p, int budge
   // is restarted from the onset grid at the fitted physics if that fits it better, then LM again.
   {
     const WindowSimulator sim(rig_, physics(L, p.u), seg_.sample_rate_hz);
-    const Chain c = evaluate(L, p);
+    // The training windows and their predecessors at p: LM's latest evaluation, as a rule.
+    const Chain& c = train.chain_cached(p);
     bool changed = false;
-    std::vector<double> m;
-    auto window_power = [&](const FitParams& q, std::size_t w, const ModelState& carried) {
-      WindowSimulator::End end;
-      simulate_window(sim, w, q, carried, m, end);
+    std::vector<double> scratch;
+    auto power_of = [&](std::size_t w, const std::vector<double>& m) {
       const auto& win = seg_.windows[w];
       double r2 = 0.0, n = 0.0;
       for (std::size_t i = 0; i < m.size(); ++i) {
@@ -618,12 +640,14 @@ void ModelFitter::restart_bad_windows(FitProblem& train, FitParams& p, int budge
       return r2 / std::max(1.0, n) / (seg_.noise_sd * seg_.noise_sd);
     };
     for (std::size_t w : train.row_windows) {
-      const ModelState carried = carry(sim, w, c);
-      const double power = window_power(p, w, carried);
+      const double power = power_of(w, c.out[w]);
       if (power <= 2.0) continue;
+      const ModelState carried = carry(sim, w, c);
       FitParams q = p;
       if (!onset_grid(sim, w, p, carried, q.ln_force[w], q.shift[w])) continue;
-      if (window_power(q, w, carried) < power) {
+      WindowSimulator::End end;
+      simulate_window(sim, w, q, carried, scratch, end);
+      if (power_of(w, scratch) < power) {
         p.ln_force[w] = q.ln_force[w];
         p.shift[w] = q.shift[w];
         changed = true;
@@ -693,7 +717,7 @@ void ModelFitter::training_statistics(const FitProblem& train, const FitParams& 
   }
 }
 
-void ModelFitter::heldout_refit(const std::vector<GlobalParameter>& L, FitParams& p) const {
+ModelFitter::Chain ModelFitter::heldout_refit(const std::vector<GlobalParameter>& L, FitParams& p) const {
   const std::size_t nw = seg_.windows.size();
   // Held-out: physics frozen, every impact's nuisances refitted (so the carried tails are right),
   // error on held-out rows only. Window by window in time order, each with its predecessor's final
@@ -735,18 +759,17 @@ void ModelFitter::heldout_refit(const std::vector<GlobalParameter>& L, FitParams
         Eigen::VectorXd g(2);
         if (onset_grid(sim, w, p, wp.carried, g[0], g[1]) && solve(g) < power) x = g;
       }
+      chain.out[w] = wp.output_at(x[0], x[1], chain.end[w]);
       p.ln_force[w] = x[0];
       p.shift[w] = x[1];
-      simulate_window(sim, w, p, wp.carried, chain.out[w], chain.end[w]);
     }
+    return chain;
   }
 }
 
-void ModelFitter::heldout_statistics(const FitParams& p, FitResult& res) const {
-  const auto& L = res.layout;
+void ModelFitter::heldout_statistics(const FitParams& p, const Chain& c, FitResult& res) const {
   const std::size_t nw = seg_.windows.size();
   res.params = p;
-  const Chain c = evaluate(L, p);
   res.model = c.out;
   res.impact_power.assign(nw, 0.0);
   double sum_r2 = 0.0, sum_n = 0.0, sum_y = 0.0, sum_y2 = 0.0;
@@ -836,8 +859,8 @@ FitResult ModelFitter::fit(const std::vector<std::string>& effects, const FitRes
 
   training_statistics(train, p, res);
 
-  heldout_refit(L, p);
-  heldout_statistics(p, res);
+  const Chain heldout = heldout_refit(L, p);
+  heldout_statistics(p, heldout, res);
   return res;
 }
 

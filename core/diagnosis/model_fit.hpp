@@ -161,8 +161,9 @@ class ModelFitter {
                     const std::vector<std::pair<std::string, double>>& start_overrides, FitParams& p) const;
   void restart_bad_windows(FitProblem& train, FitParams& p, int budget, FitResult& res) const;
   void training_statistics(const FitProblem& train, const FitParams& p, FitResult& res) const;
-  void heldout_refit(const std::vector<GlobalParameter>& layout, FitParams& p) const;
-  void heldout_statistics(const FitParams& p, FitResult& res) const;
+  /// Returns the chain at the refitted nuisances (every window).
+  Chain heldout_refit(const std::vector<GlobalParameter>& layout, FitParams& p) const;
+  void heldout_statistics(const FitParams& p, const Chain& c, FitResult& res) const;
   /// Best onset shift (grid) and force (projection) of window w at the given physics and tail.
   bool onset_grid(const WindowSimulator& sim, std::size_t w, const FitParams& p, const ModelState& carried,
                   double& ln_force, double& shift) const;
