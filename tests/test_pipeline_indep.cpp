@@ -487,6 +487,30 @@ TEST(PipelineIndep, NoOkIntervalMissesTheTruthOnANoisyOverlappingRecord) {
 namespace ridgewatch::test {
 namespace {
 
+// A record of the survey sweep's kind (bench/survey_cases.hpp): one impact per revolution of a shaft
+// ramping from 0.95 to 1.05 times `rate`, a 22-tooth mesh (harmonics at 25 % and 15 % of the impact
+// amplitude 0.25, ±10 % spread), hum 50 / 100 Hz (10 %, 5 %), white noise at `snr_db`.
+indep::RigSpec survey_record_spec(double fs, double f, double rate, double zeta, double snr_db, double duration_s,
+                                  std::uint64_t seed) {
+  indep::RigSpec s;
+  const double a = 0.25;
+  s.fs_hz = fs;
+  s.duration_s = duration_s;
+  s.rev_hz = rate * 0.95;
+  s.ramp_rel = 0.10 / 0.95;
+  s.teeth = 22;
+  s.mesh_amp = {0.25 * a, 0.15 * a};
+  s.hum_amp = {0.10 * a, 0.05 * a};
+  s.noise_sd = a * std::pow(10.0, -snr_db / 20.0);
+  s.response.f_hz = f;
+  s.response.zeta = zeta;
+  s.response.amplitude = a;
+  s.amp_jitter_rel = 0.1;
+  s.first_impact_s = 0.5 / rate + 0.01;
+  s.seed = seed;
+  return s;
+}
+
 // ---------------------------------------------------------------------------------------------------
 // 6. ok is a promise when a mesh line sits within a DFT bin of the mode: 854 Hz, zeta 0.01, one impact
 //    per revolution of a shaft ramping 38 -> 42 Hz (40 impacts per second), a 22-tooth mesh line at
@@ -497,23 +521,7 @@ namespace {
 //    zeta 43-66 % high and intervals of +-11 % that missed the truth. Asserted: every event is a true
 //    impact, there are enough of them to mean something, and no ok interval misses the true zeta.
 TEST(PipelineIndep, NoOkIntervalMissesTheTruthWithAMeshLineWithinABinOfTheMode) {
-  indep::RigSpec s;
-  const double a = 0.25;
-  s.fs_hz = 51200.0;
-  s.duration_s = 6.0;
-  s.rev_hz = 40.0 * 0.95;
-  s.ramp_rel = 0.10 / 0.95;
-  s.teeth = 22;
-  s.mesh_amp = {0.25 * a, 0.15 * a};
-  s.hum_amp = {0.10 * a, 0.05 * a};
-  s.noise_sd = a * std::pow(10.0, -40.0 / 20.0);
-  s.response.f_hz = 854.0;
-  s.response.zeta = 0.01;
-  s.response.amplitude = a;
-  s.amp_jitter_rel = 0.1;
-  s.first_impact_s = 0.5 / 40.0 + 0.01;
-  s.seed = 505;
-  indep::RigRecord rec = indep::make_rig_record(s);
+  indep::RigRecord rec = indep::make_rig_record(survey_record_spec(51200.0, 854.0, 40.0, 0.01, 40.0, 6.0, 505));
   for (double& v : rec.x) v = static_cast<float>(v);  // the float32 file's samples
   PipelineConfig cfg;
   cfg.sample_rate_hz = rec.fs_hz;
@@ -571,23 +579,7 @@ namespace {
 //    misses (17 x 5 % = 0.85 expected misses for calibrated intervals; the record is seeded, so the
 //    count is fixed, 0 with Student's t).
 TEST(PipelineIndep, OkIntervalsCoverTheTruthOnShortLowFrequencySegments) {
-  indep::RigSpec s;
-  const double a = 0.25;
-  s.fs_hz = 25600.0;
-  s.duration_s = 8.0;
-  s.rev_hz = 5.0 * 0.95;
-  s.ramp_rel = 0.10 / 0.95;
-  s.teeth = 22;
-  s.mesh_amp = {0.25 * a, 0.15 * a};
-  s.hum_amp = {0.10 * a, 0.05 * a};
-  s.noise_sd = a * std::pow(10.0, -40.0 / 20.0);
-  s.response.f_hz = 300.0;
-  s.response.zeta = 0.05;
-  s.response.amplitude = a;
-  s.amp_jitter_rel = 0.1;
-  s.first_impact_s = 0.5 / 5.0 + 0.01;
-  s.seed = 116;
-  const indep::RigRecord rec = indep::make_rig_record(s);
+  const indep::RigRecord rec = indep::make_rig_record(survey_record_spec(25600.0, 300.0, 5.0, 0.05, 40.0, 8.0, 116));
   PipelineConfig cfg;
   cfg.sample_rate_hz = rec.fs_hz;
   cfg.detector.band_lo_hz = 254.7;
