@@ -90,7 +90,7 @@ void ImpactDetector::measure_fill_up(double bw) {
   std::vector<double> s(n_out, 0.0), x(n_out * dec_, 0.0);
   std::vector<std::complex<double>> y;
   for (std::size_t p = 0; p < dec_; ++p) {
-    std::fill(x.begin(), x.end(), 0.0);
+    if (p > 0) x[p - 1] = 0.0;  // the previous position's impulse
     x[p] = 1.0;
     run_chain(x, y);
     for (std::size_t m = 0; m < n_out; ++m) s[m] += std::norm(y[m]);
@@ -118,11 +118,18 @@ void ImpactDetector::run_chain(const std::vector<double>& x, std::vector<std::co
   std::complex<double> ph{1.0, 0.0};
   std::size_t k_ph = 0;
   y.clear();
-  std::vector<float> padded(taps_ - 1, 0.0f);
-  for (double v : x) padded.push_back(static_cast<float>(v));
+  std::vector<float> padded(taps_ - 1 + x.size(), 0.0f);
+  std::transform(x.begin(), x.end(), padded.begin() + static_cast<std::ptrdiff_t>(taps_ - 1),
+                 [](double v) { return static_cast<float>(v); });
+  // Past the last non-zero sample (an impulse response) the FIR windows hold only zeros, whose
+  // output is +0 (fir_steps_generic's sums of +-0 products from +0), so they are not summed.
+  std::size_t zero_from = x.size();  // FIR windows ending at or after this index are all zero
+  while (zero_from > 0 && padded[taps_ - 2 + zero_from] == 0.0f) --zero_from;
+  zero_from += taps_ - 1;
   for (std::size_t j = dec_ - 1; j < x.size(); j += dec_) {
     float fr = 0.0f, fi = 0.0f, zr = 0.0f, zi = 0.0f;
-    kernels::fir_steps_generic(padded.data() + j, dec_, 1, g_re_.data(), g_im_.data(), taps_, &fr, &fi);
+    if (j < zero_from)
+      kernels::fir_steps_generic(padded.data() + j, dec_, 1, g_re_.data(), g_im_.data(), taps_, &fr, &fi);
     kernels::phasor_rotate_generic(&fr, &fi, &pw_re_[k_ph], &pw_im_[k_ph], static_cast<float>(ph.real()),
                                    static_cast<float>(ph.imag()), 1, &zr, &zi);
     if (++k_ph == kGroup) {

@@ -47,14 +47,19 @@ void ImpactDetector::calibrate(double fc) {
   // its maximum and the time of the maximum, in input samples after the start.
   const double sigma0 = kModelZeta * 2.0 * std::numbers::pi * fc;
   const auto n_len = static_cast<std::size_t>(std::ceil(0.1 * fs_)) + 2 * dec_;  // 100 ms is past any peak
+  // The decay started at sample 0; started at p it is the same samples p later (t = (n - p) / fs is
+  // exact in double for these integers), so the exponentials are evaluated once, not once per p.
+  std::vector<double> decay(n_len);
+  for (std::size_t n = 0; n < n_len; ++n) {
+    const double t = static_cast<double>(n) / fs_;
+    decay[n] = std::exp(-sigma0 * t) * std::cos(2.0 * std::numbers::pi * fc * t);
+  }
   std::vector<double> x(n_len, 0.0);
   std::vector<std::complex<double>> y;
   double t50_sum = 0.0, t50_min = 1e300, t50_max = -1e300, peak_max = 0.0;
   for (std::size_t p = 0; p < dec_; ++p) {
-    for (std::size_t n = 0; n < n_len; ++n) {
-      const double t = (static_cast<double>(n) - static_cast<double>(p)) / fs_;
-      x[n] = n < p ? 0.0 : std::exp(-sigma0 * t) * std::cos(2.0 * std::numbers::pi * fc * t);
-    }
+    std::fill(x.begin(), x.begin() + static_cast<std::ptrdiff_t>(p), 0.0);
+    std::copy(decay.begin(), decay.end() - static_cast<std::ptrdiff_t>(p), x.begin() + static_cast<std::ptrdiff_t>(p));
     run_chain(x, y);
     std::size_t m_peak = 0;
     for (std::size_t m = 0; m < y.size(); ++m)
