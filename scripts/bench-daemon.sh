@@ -54,16 +54,40 @@ trap cleanup EXIT
 cpu=$(taskset -pc $$ | sed -E 's/.*: *([0-9]+).*/\1/')
 TIMEFORMAT='%3U %3S %3R'
 
-if ((net)); then
-  # Two free loopback ports (the kernel picks them).
-  read -r mqtt_port http_port < <(python3 -c 'import socket
+# Starts mosquitto on two free loopback ports the kernel picks (mqtt_port, http_port) and waits until
+# it accepts connections. The ports are free when picked but may be taken again before the broker
+# binds (other programs on the host), so a broker that exits or does not listen within 5 s is retried
+# on new ports, three times at most.
+start_broker() {
+  local attempt
+  for attempt in 1 2 3; do
+    read -r mqtt_port http_port < <(python3 -c 'import socket
 s=[socket.socket() for _ in range(2)]
 [x.bind(("127.0.0.1",0)) for x in s]
 print(*[x.getsockname()[1] for x in s])')
-  printf 'listener %s 127.0.0.1\nallow_anonymous true\n' "$mqtt_port" >"$work/mosquitto.conf"
-  /usr/sbin/mosquitto -c "$work/mosquitto.conf" 2>"$work/broker.log" &
-  broker_pid=$!
-  sleep 0.5
+    printf 'listener %s 127.0.0.1\nallow_anonymous true\n' "$mqtt_port" >"$work/mosquitto.conf"
+    /usr/sbin/mosquitto -c "$work/mosquitto.conf" 2>"$work/broker.log" &
+    broker_pid=$!
+    if python3 -c 'import socket, sys, time
+for _ in range(50):
+    try:
+        socket.create_connection(("127.0.0.1", int(sys.argv[1])), 0.1).close(); sys.exit(0)
+    except OSError:
+        time.sleep(0.1)
+sys.exit(1)' "$mqtt_port" && kill -0 "$broker_pid" 2>/dev/null; then
+      return 0
+    fi
+    echo "bench-daemon: mosquitto on port $mqtt_port did not come up (attempt $attempt):" >&2
+    cat "$work/broker.log" >&2
+    kill "$broker_pid" 2>/dev/null && wait "$broker_pid" 2>/dev/null
+    broker_pid=""
+  done
+  echo "bench-daemon: no broker after three attempts" >&2
+  exit 1
+}
+
+if ((net)); then
+  start_broker
   cat >"$work/net.yaml" <<YAML
 output:
   source_name: "bench"
@@ -76,7 +100,15 @@ http:
   listen: "127.0.0.1:$http_port"
 YAML
 fi
-broker_cpu() { awk '{ print ($14 + $15) / 100 }' "/proc/$broker_pid/stat"; }  # utime + stime, s (100 Hz ticks)
+# The broker's utime + stime in s (100 Hz ticks); a broker that has exited ends the run with its log.
+broker_cpu() {
+  if ! kill -0 "$broker_pid" 2>/dev/null; then
+    echo "bench-daemon: mosquitto (pid $broker_pid) has exited; its log:" >&2
+    cat "$work/broker.log" >&2
+    exit 1
+  fi
+  awk '{ print ($14 + $15) / 100 }' "/proc/$broker_pid/stat"
+}
 
 # One run of the pinned daemon; extra arguments go to ridgewatchd. Sets user, sys, wall, rss_kb, n.
 run_daemon() {
