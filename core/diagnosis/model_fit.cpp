@@ -404,6 +404,10 @@ struct FitProblem {
         FitParams q = p;
         const double h = 1e-6 * std::max(1.0, std::abs(p.u[i]));
         q.u[i] += h;
+        // A ln parameter beyond the clamp at its bound (LM may step there) keeps its value under the
+        // step, so every residual stays as it is: the column is exactly zero, as simulating would give.
+        const GlobalParameter& g = layout[static_cast<std::size_t>(i)];
+        if (to_value(g.transform, g.lo, g.hi, q.u[i]) == to_value(g.transform, g.lo, g.hi, p.u[i])) continue;
         residuals(chain(q), f1);
         J.col(col) = (f1 - f0) / h;
       }

@@ -142,7 +142,14 @@ MeshIntegrator::MeshIntegrator(const MeshModel& model, std::span<const ImpactPul
       shaft_speed_hz_(shaft_speed_hz),
       origin_s_(origin_s),
       options_(options),
-      regimes_(model.effects_.size(), 1) {}
+      regimes_(model.effects_.size(), 1) {
+  update_force_factor();
+}
+
+void MeshIntegrator::update_force_factor() {
+  force_factor_ = 1.0;
+  for (std::size_t i : model_.factor_effects_) force_factor_ *= model_.effects_[i]->mesh_force_factor(regimes_[i]);
+}
 
 void MeshIntegrator::use_grid(double t0_s, double h_s, double theta0_rad, double mesh_omega_rad_per_s,
                               std::size_t points) {
@@ -162,7 +169,7 @@ void MeshIntegrator::use_grid(double t0_s, double h_s, double theta0_rad, double
   }
 }
 
-MeshTerms MeshIntegrator::terms_at(double t_s, double th) const {
+[[gnu::always_inline]] inline MeshTerms MeshIntegrator::terms_at(double t_s, double th) const {
   if (model_.use_phasors_ && !model_.mesh_forcing_) return {};  // as MeshModel::terms, without the call
   if (!grid_.empty()) {
     // Off-grid times (pulse edges, located events) fall back to the model's evaluation.
@@ -229,8 +236,6 @@ double MeshIntegrator::mesh_coordinate_force_n(double t_s, const State& s, bool 
   const auto& effects = model_.effects_;
   const double mesh_angle_rad = mesh_angle(s);
   const MeshTerms mt = terms_at(t_s, mesh_angle_rad);
-  double factor = 1.0;
-  for (std::size_t i : model_.factor_effects_) factor *= effects[i]->mesh_force_factor(regimes_[i]);
   const double deflection = model_.q_s_ + s[kX] + mt.e;  // δ = q_s + x + e
   const double deflection_rate = s[kV] + mt.de * model_.teeth_ * theta_dot;
   const double damping = model_.damping_ratio(t_s) * model_.crit_;
@@ -239,7 +244,7 @@ double MeshIntegrator::mesh_coordinate_force_n(double t_s, const State& s, bool 
   const double c0 = model_.c0_;
   const double elastic = mt.dcs == mt.dc ? (c0 + mt.dc) * deflection
                                          : (c0 + mt.dc) * (s[kX] + mt.e) + (c0 + mt.dcs) * model_.q_s_;
-  double force = model_.static_force_ + impact_force - factor * (elastic + damping * deflection_rate);
+  double force = model_.static_force_ + impact_force - force_factor_ * (elastic + damping * deflection_rate);
   if (model_.resisting_.empty()) return force;
   const MeshState m{.t_s = t_s,
                     .mesh_angle_rad = mesh_angle_rad,
@@ -299,6 +304,7 @@ void MeshIntegrator::update_regimes(double t_s, State& s, bool velocity_reversal
   // friction limit.
   const MeshState m = mesh_state(t_s, s);
   for (std::size_t i : model_.switching_) regimes_[i] = sign_of(model_.effects_[i]->switching_function(m));
+  update_force_factor();
   if (model_.stick_limit_n_ > 0.0 && velocity_reversal) {
     State rest = s;
     rest[kV] = 0.0;
@@ -317,6 +323,7 @@ void MeshIntegrator::check_release(double t_s, const State& s) {
     stuck_ = false;
     for (std::size_t i : model_.switching_)
       if (model_.effects_[i]->stick_force_limit_n() > 0.0) regimes_[i] = sign_of(other);
+    update_force_factor();
   }
 }
 

@@ -170,6 +170,9 @@ class MeshIntegrator {
   void locate_event(double& t_s, double step, State& s, const State& end, std::uint64_t& events);
   double event_fraction(double t_s, double step, const State& s, const State& end) const;
   std::size_t single_switching_effect() const;
+  /// The product of the effects' mesh_force_factor at the current regimes (Eq. A1's g(regime)),
+  /// kept in force_factor_: set wherever the regimes change, read by every right-hand side.
+  void update_force_factor();
 
   const MeshModel& model_;
   std::span<const ImpactPulse> pulses_;
@@ -177,6 +180,7 @@ class MeshIntegrator {
   Options options_;
   std::size_t cursor_ = 0;  // first pulse that has not ended before the current step
   std::vector<int> regimes_;
+  double force_factor_ = 1.0;
   bool stuck_ = false;
   double grid_t0_ = 0.0, grid_inv_half_h_ = 0.0;
   std::vector<MeshTerms> grid_;
