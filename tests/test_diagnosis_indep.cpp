@@ -353,3 +353,28 @@ TEST(DiagnoseIndependent, DampingDriftHasNoStep) {
                                      << " and " << r.damping_step.time.ci95_hi << " s";
   for (const auto& e : r.final_fit.estimates) EXPECT_NE(e.name, "damping_drift.step");
 }
+
+// A step time chosen from the data (diagnose's scan) is one more parameter in the BIC of a model with
+// damping_drift, and only there: the same fit with the time given by the user differs by exactly
+// ln n in BIC (k ln n with one more k) and not in χ²; a model without damping_drift fitted with the
+// chosen time in the settings is the plain model (the time acts on nothing, costs nothing).
+TEST(CompareIndependent, ChosenStepTimeCountsInTheBicOfItsModelsOnly) {
+  ig::Settings st = ig::short_test_record(ig::Hidden::kDampingStep, 0.008, 1);
+  st.size2 = 0.32;
+  const auto r = ig::generate(st);
+  const auto rig = paper_rig();
+  const auto seg = rd::subset_windows(rd::segment_recording(r.y, kRate, rig), 16);
+  rd::ModelFitter given(r.y, seg, rig), chosen(r.y, seg, rig);
+  given.set_parameter_settings({{"damping_drift.step_time_s", {0.336, true, false}}});
+  chosen.set_parameter_settings({{"damping_drift.step_time_s", {0.336, true, true}}});
+  const rd::FitResult g = given.fit({"damping_drift"});
+  const rd::FitResult c = chosen.fit({"damping_drift"});
+  EXPECT_EQ(c.free_parameters, g.free_parameters + 1);
+  EXPECT_DOUBLE_EQ(c.train_chi2, g.train_chi2);
+  // Relative 1e-9: the two BICs are sums of the same terms but one ln n, ~1e4 in size.
+  EXPECT_NEAR(c.bic - g.bic, std::log(c.train_n), 1e-9 * std::abs(c.bic));
+  const rd::FitResult plain = rd::ModelFitter(r.y, seg, rig).fit({});
+  const rd::FitResult without = chosen.fit({});
+  EXPECT_EQ(without.free_parameters, plain.free_parameters);
+  EXPECT_DOUBLE_EQ(without.bic, plain.bic);
+}
