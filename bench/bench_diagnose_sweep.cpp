@@ -85,12 +85,23 @@ Run run_one(const ig::Case& c, int seed, const Options& o) {
   r.hidden = c.name;
   r.label = verdict_label(res);
   std::string want = c.name == "mesh_stiffness_variation+lines" ? "mesh_stiffness_variation" : c.name;
+  if (c.name == "damping_step") want = "damping_drift";
   r.right = c.in_catalogue ? r.label == want : (res.verdict.empty() && res.ambiguous.empty() && res.unexplained);
+  // A damping step is right only with its gap (the bracketing impacts contain the true time) and an
+  // interval covering its size; a drift only without a step.
+  const auto& ds = res.damping_step;
+  if (c.name == "damping_step")
+    r.right = r.right && ds.found && ds.time.ci95_lo < st.size2 && st.size2 < ds.time.ci95_hi && ds.step.ci95_lo < st.size &&
+              st.size < ds.step.ci95_hi;
+  if (c.name == "damping_drift") r.right = r.right && !ds.found;
   if (c.name == "none" && res.proposal.proposed) r.right = false;  // a control must not get a proposed force either
   std::printf("| %s | %d | %s | %s | %.3g -> %.3g | %s | %.0f / %.0f |\n", c.name.c_str(), seed, r.label.c_str(),
               res.unexplained ? "yes" : "no", res.baseline_excess, res.final_excess, r.right ? "yes" : "NO", wall, cpu);
   if (!r.right && !res.ambiguous_evidence.empty()) std::printf("|   | | ambiguous: %s | | | | |\n", res.ambiguous_evidence.c_str());
   if (res.proposal.proposed) std::printf("|   | | proposed: %s | | | | |\n", res.proposal.force.c_str());
+  if (ds.found)
+    std::printf("|   | | damping step %.4g (95 %%: %.4g .. %.4g) between the impacts at %.4g and %.4g s | | | | |\n", ds.step.value,
+                ds.step.ci95_lo, ds.step.ci95_hi, ds.time.ci95_lo, ds.time.ci95_hi);
   std::fflush(stdout);
   return r;
 }

@@ -149,6 +149,13 @@ int run_diagnose(const std::vector<std::string>& argv, std::ostream& out, std::o
                       {"final_parameters", final_params},
                       {"unexplained", {{"present", r.unexplained}, {"where", r.unexplained_where}}},
                       {"sensor_problems", r.sensor_problems}};
+  // A step in ζ found by the step-time scan: the impacts that bracket it (its time is anywhere between
+  // them), the time the model puts it at, and its size.
+  const auto& ds = r.damping_step;
+  j["damping_step"] = {{"present", ds.found},
+                       {"between_impacts_s", ds.found ? nlohmann::json::array({ds.time.ci95_lo, ds.time.ci95_hi}) : nlohmann::json(nullptr)},
+                       {"model_time_s", ds.found ? nlohmann::json(ds.time.value) : nlohmann::json(nullptr)},
+                       {"step", ds.found ? diag::estimate_json(ds.step) : nlohmann::json(nullptr)}};
 
   const std::string yaml = r.proposal.proposed ? proposal_yaml(r.proposal) : std::string();
   j["proposed"] = proposal_json(r, yaml);
@@ -194,7 +201,12 @@ int run_diagnose(const std::vector<std::string>& argv, std::ostream& out, std::o
   }
   text << "verdict: ";
   if (r.verdict.empty()) text << (!r.ambiguous.empty() ? "no single effect (ambiguous, below)" : r.unexplained ? "no catalogue effect passes" : "nothing missing above the noise");
-  for (std::size_t i = 0; i < r.verdict.size(); ++i) text << (i ? " then " : "") << r.verdict[i];
+  for (std::size_t i = 0; i < r.verdict.size(); ++i) {
+    text << (i ? " then " : "") << r.verdict[i];
+    if (r.verdict[i] == "damping_drift" && ds.found)
+      text << " (a step in zeta of " << g(ds.step.value) << ", 95 %: " << g(ds.step.ci95_lo) << " .. " << g(ds.step.ci95_hi)
+           << ", between the impacts at " << g(ds.time.ci95_lo, 4) << " s and " << g(ds.time.ci95_hi, 4) << " s)";
+  }
   text << "; final held-out excess " << g(r.final_excess) << ", fit " << g(r.final_fit_percent, 4) << " %\n";
   if (!r.ambiguous.empty()) text << "ambiguous: " << r.ambiguous_evidence << "\n";
   for (const auto& u : undescribed) text << "NOT DESCRIBED BY THE RIG: " << u << "\n";

@@ -8,6 +8,7 @@
 #include <optional>
 #include <sstream>
 
+#include "core/diagnosis/damping_step.hpp"
 #include "core/model/effect_registry.hpp"
 
 namespace ridgewatch::diagnosis {
@@ -68,9 +69,15 @@ std::string implausibility(const ModelFitter& fitter, const FitResult& fit, cons
     if (z2 > 0.2) return "second mode damping ratio " + format_number(z2) + " > 0.2 is not a resonance";
   }
   if (effect == "damping_drift") {
+    // ζ(t) is piecewise linear with at most one step: its least value is at an end or at the step.
     const double rate = find_estimate(fit, "damping_drift.rate_per_s")->value;
     const double t_end = static_cast<double>(seg.windows.back().end) / seg.sample_rate_hz;
-    if (zeta + rate * t_end <= 0.0 || zeta <= 0.0) return "the drift would make the damping ratio negative";
+    const ParameterEstimate* step = find_estimate(fit, "damping_drift.step");
+    const auto t_step = fitter.parameter_settings().find(kStepTimeKey);
+    double lowest = std::min(zeta, zeta + rate * t_end + (step ? step->value : 0.0));
+    if (step && t_step != fitter.parameter_settings().end())
+      lowest = std::min({lowest, zeta + rate * t_step->second.value, zeta + rate * t_step->second.value + step->value});
+    if (lowest <= 0.0) return "the drift would make the damping ratio negative";
   }
   return "";
 }
@@ -404,6 +411,11 @@ CandidateOutcome judge(const ModelFitter& fitter, const std::string& name, int r
     if (e.name.rfind(name + ".", 0) == 0 || (e.name == "mesh_phase_rad" && find_candidate(name)->mesh_periodic))
       o.parameters.push_back(e);
   o.evidence = evidence(name, f, current_rep);
+  if (const auto t = chosen_step_time(fitter); t && name == "damping_drift" && find_estimate(f, "damping_drift.step")) {
+    o.parameters.push_back(*t);
+    o.evidence += " The step is between the impacts at " + format_number(t->ci95_lo, 4) + " s and " + format_number(t->ci95_hi, 4) +
+                  " s (no impact sees when inside that gap; the model puts it at " + format_number(t->value, 4) + " s).";
+  }
   return o;
 }
 
@@ -488,7 +500,7 @@ void polish(const ModelFitter& fitter, const std::vector<std::string>& model, Fi
 }
 
 /// Backward elimination after an acceptance in `round` (see inside).
-void backward_eliminate(const ModelFitter& fitter, int round, std::vector<std::string>& model, FitResult& current,
+void backward_eliminate(ModelFitter& fitter, int round, std::vector<std::string>& model, FitResult& current,
                         DiagnoseResult& res) {
   // Backward elimination: every effect accepted before this round is re-tested by refitting the
   // model without it; one whose removal would no longer fail the gain gate or the BIC gate (the
@@ -518,6 +530,8 @@ void backward_eliminate(const ModelFitter& fitter, int round, std::vector<std::s
       res.steps.push_back(o);
       res.removed.push_back(res.verdict[k]);
       model = without;
+      // A damping step's chosen time goes with damping_drift (a later round may search it again).
+      if (res.verdict[k] == "damping_drift") fitter.set_parameter_settings(without_chosen_step(fitter));
       res.verdict.erase(res.verdict.begin() + static_cast<std::ptrdiff_t>(k));
       current = std::move(g);
       dropped = true;
@@ -599,6 +613,7 @@ DiagnoseResult diagnose(const ModelFitter& reporting, const std::vector<std::str
 
   for (int round = 1; round <= options.max_rounds; ++round) {
     std::vector<std::pair<CandidateOutcome, FitResult>> tried;
+    std::optional<ModelFitter> step_fitter;  // damping_drift's fitter when its step was found (damping_step.hpp)
     const double f0 = f0_of(fitter, current);
     const double zeta = find_estimate(current, "zeta")->value;
     for (const auto& name : pool) {
@@ -618,7 +633,18 @@ DiagnoseResult diagnose(const ModelFitter& reporting, const std::vector<std::str
         continue;
       }
       FitResult f = std::move(*fitted);
-      CandidateOutcome o = judge(fitter, name, round, current, current_rep, f);
+      if (name == "damping_drift") {
+        ModelFitter stepped = fitter;
+        if (auto s = fit_damping_step(fitter, with, f, stepped)) {
+          progress("round " + std::to_string(round) + ": damping_drift with a step between the impacts at " +
+                   format_number(s->gap.after_impact_s, 4) + " and " + format_number(s->gap.before_impact_s, 4) +
+                   " s (training BIC " + format_number(s->fit.bic - f.bic, 4) + " against the rate alone)");
+          f = std::move(s->fit);
+          step_fitter = std::move(stepped);
+        }
+      }
+      CandidateOutcome o = judge(name == "damping_drift" && step_fitter ? *step_fitter : fitter, name, round, current,
+                                 current_rep, f);
       tried.push_back({o, std::move(f)});
     }
     int best = choose_best(tried, current_rep, res);
@@ -628,6 +654,7 @@ DiagnoseResult diagnose(const ModelFitter& reporting, const std::vector<std::str
     for (const auto& t : tried) res.steps.push_back(t.first);
     if (best < 0) break;
     auto& chosen = tried[static_cast<std::size_t>(best)];
+    if (chosen.first.effect == "damping_drift" && step_fitter) fitter = std::move(*step_fitter);
     model.push_back(chosen.first.effect);
     res.verdict.push_back(chosen.first.effect);
     current = std::move(chosen.second);
@@ -643,11 +670,18 @@ DiagnoseResult diagnose(const ModelFitter& reporting, const std::vector<std::str
     progress("final model: refitting the dry friction with the held-out impacts' offsets");
     const bool pulse = std::any_of(current.layout.begin(), current.layout.end(),
                                    [](const GlobalParameter& g) { return g.name == "pulse_duration_s"; });
-    current = reporting.fit(model, &current, {}, pulse);
+    ModelFitter carry_fit = reporting;
+    carry_fit.set_parameter_settings(fitter.parameter_settings());  // with a chosen step time
+    current = carry_fit.fit(model, &current, {}, pulse);
     current_rep = analyse_residual(fitter, current);
   }
   res.final_excess = current.heldout_excess;
   res.final_fit_percent = current.fit_percent;
+  if (const auto t = chosen_step_time(fitter); t && find_estimate(current, "damping_drift.step")) {
+    res.damping_step.found = true;
+    res.damping_step.time = *t;
+    res.damping_step.step = *find_estimate(current, "damping_drift.step");
+  }
   // Unexplained: the final held-out excess is still above 0.1 (the acceptance target, ~3 standard
   // errors of the excess for a few thousand held-out samples) and above its own 3-SE noise.
   const double se3 = 3.0 * std::sqrt(2.0 / std::max(1.0, current.heldout_n));
@@ -675,7 +709,8 @@ std::vector<std::string> description_problems(const ModelFitter& fitter, const F
   const ParameterEstimate* rate = find_estimate(fit, "damping_drift.rate_per_s");
   if (rate != nullptr) {
     const double t_end = static_cast<double>(seg.windows.back().end) / seg.sample_rate_hz;
-    const double z_end = find_estimate(fit, "zeta")->value + rate->value * t_end;
+    const ParameterEstimate* step = find_estimate(fit, "damping_drift.step");  // a step lies before the end
+    const double z_end = find_estimate(fit, "zeta")->value + rate->value * t_end + (step ? step->value : 0.0);
     if (z_end < 0.0) out.push_back("the fitted damping drift makes the damping ratio negative (" + format_number(z_end) + " at " + format_number(t_end, 3) + " s)");
   }
   // Fit % = 100 (1 - |r| / |y - ȳ|): below 50 % the model misses more than half the signal amplitude;

@@ -81,6 +81,14 @@ struct DiagnoseResult {
     ResidualReport report;
   };
   std::vector<Round> rounds;
+  /// A step in ζ found by damping_drift's step-time scan (damping_step.hpp) when the final model has
+  /// one: `time` is the model's step time with the onsets of the two fitted impacts that bracket it as
+  /// its interval (the time is not identifiable inside that gap; sd NaN), `step` the fitted size.
+  struct DampingStep {
+    bool found = false;
+    ParameterEstimate time, step;
+  };
+  DampingStep damping_step;
   /// Term discovery on the final model's residual, run when `unexplained` (else empty, proposed false).
   bool discovery_run = false;
   TermDiscoveryResult proposal;

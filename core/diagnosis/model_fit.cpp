@@ -72,6 +72,7 @@ PhysicsValues ModelFitter::physics(const std::vector<GlobalParameter>& layout, c
   }
   // Fixed settings: into the effects fitted above, and effects with every parameter fixed (absent
   // from the layout) added with their fixed values (they belong to every model; see the header).
+  const std::size_t fitted_effects = p.effects.size();
   for (const auto& [name, s] : settings_) {
     if (!s.fixed) continue;
     const auto dot = name.find('.');
@@ -83,6 +84,15 @@ PhysicsValues ModelFitter::physics(const std::vector<GlobalParameter>& layout, c
     }
     it->second[key] = s.value;
   }
+  // An effect the settings fix only in part and the layout does not fit is not in this model
+  // (diagnose keeps a chosen step time in its settings while it fits models without damping_drift).
+  const auto incomplete = [](const auto& e) {
+    for (const auto& f : find_candidate(e.first)->free)
+      if (e.second.find(f.key) == e.second.end()) return true;
+    return false;
+  };
+  p.effects.erase(std::remove_if(p.effects.begin() + static_cast<std::ptrdiff_t>(fitted_effects), p.effects.end(), incomplete),
+                  p.effects.end());
   for (auto& [effect, values] : p.effects) {
     // Every free key of a fully fixed effect must now have a value.
     for (const auto& f : find_candidate(effect)->free)
@@ -684,6 +694,10 @@ void ModelFitter::training_statistics(const FitProblem& train, const FitParams& 
     // reach these rows only through the carried offset, and counting them would charge a friction
     // candidate 2 ln n per held-out impact that the linear model it is compared with does not pay.
     res.free_parameters = train.inputs() - 2 * static_cast<int>(train.free_windows.size() - train.row_windows.size());
+    // A value chosen from the data by a scan (diagnose's step time) is a parameter as well.
+    for (const auto& [name, s] : settings_)
+      if (s.chosen_from_data && std::find(res.effects.begin(), res.effects.end(), name.substr(0, name.find('.'))) != res.effects.end())
+        ++res.free_parameters;
     res.bic = n_used * std::log(res.train_chi2 / n_used) + res.free_parameters * std::log(n_used);
     const double s2 = res.train_chi2 / std::max(1.0, n_used - res.free_parameters);
     const Eigen::MatrixXd jtj = J.transpose() * J;

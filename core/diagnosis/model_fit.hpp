@@ -90,11 +90,17 @@ class ModelFitter {
   struct ParameterSetting {
     double value = 0.0;
     bool fixed = false;
+    /// Chosen from the data, not given by the user (diagnose's scan of damping_drift's step time over
+    /// the gaps between impacts, damping_step.hpp): counted as a free parameter in the BIC of every
+    /// model that contains its effect.
+    bool chosen_from_data = false;
   };
   /// Settings by "<effect>.<key>". Throws std::invalid_argument for an effect that is not a
-  /// candidate, an unknown key or a value outside the fit range. A fixed setting must belong to an
-  /// effect that is in every model fitted afterwards (the starting model: diagnose never removes it).
+  /// candidate, an unknown key or a value outside the fit range. A fixed setting belongs to every
+  /// model fitted afterwards that contains its effect; an effect the model lacks is added with it only
+  /// when the settings fix all of its parameters (a fully fixed effect, e.g. the starting model's).
   void set_parameter_settings(const std::map<std::string, ParameterSetting>& settings);
+
   const std::map<std::string, ParameterSetting>& parameter_settings() const { return settings_; }
   /// Dry friction: the training fit also fits the held-out windows' nuisances (through the carried
   /// stuck offset only, see fit()); without it force_n and ζ come out ~5 sd off. On by default;

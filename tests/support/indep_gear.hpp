@@ -291,6 +291,9 @@ inline std::vector<Case> sweep_cases() {
       mk("mesh_stiffness_variation+lines", Hidden::kMeshVariation, 1.5),
       mk("contact_loss", Hidden::kContactLoss, 1.0, 0.0, 0.0, 20.0),
       mk("damping_drift", Hidden::kDampingDrift, 0.008),
+      // ζ 0.024 -> 0.032 at 0.32 s (the middle of a 0.64 s record): right only as damping_drift with a
+      // step between the two fitted impacts around 0.32 s.
+      mk("damping_step", Hidden::kDampingStep, 0.008, 0.32),
       mk("transmission_error", Hidden::kTransmissionError, 0.3e-6, 0.1e-6),
       // Out of catalogue. Cubic damping: ζ_eq(A) grows with A², 2e9 N s³/m³ doubles the damping
       // force at 6 mm/s. Dead zone of 0.1 µm (10 % of the typical 1 µm response). f0 drift 0.4 %/s.
