@@ -598,7 +598,9 @@ TermDiscoveryResult fit_dead_zone(const ModelFitter& fitter, const FitResult& ba
                                                                 {opt.effect_name + ".b_dz", x_rms * std::ldexp(1.0, -k)}};
     try {
       FitResult g = fitter.fit(effects, nullptr, starts);
-      if (!ok || g.heldout_excess < best.heldout_excess) best = std::move(g);
+      // The gap's start chosen by the training fit (the same parameters from different starts), so
+      // that the held-out impacts judge the proposal without having chosen it.
+      if (!ok || g.train_chi2 < best.train_chi2) best = std::move(g);
       ok = true;
     } catch (const std::exception&) {
       // the force left its finite range during this fit
@@ -607,12 +609,14 @@ TermDiscoveryResult fit_dead_zone(const ModelFitter& fitter, const FitResult& ba
   if (ok) {
     // The best fit's gap and coefficient once more cold (c0, ζ and the pulse from the rig's), as
     // compare refits the pasted block from its defaults: the multi-start's cold fits start a_dz and
-    // b_dz far from where they end, and LM can stop with c0 or the pulse length in a corner.
+    // b_dz far from where they end, and LM can stop with c0 or the pulse length in a corner. With each
+    // pulse shape, as compare does: the impact drives the mesh through the gap while the pulse acts,
+    // so the pulse's shape shows where its length cannot absorb it.
     std::vector<std::pair<std::string, double>> starts;
     for (const auto& e : best.estimates)
       if (e.name == opt.effect_name + ".a_dz" || e.name == opt.effect_name + ".b_dz") starts.emplace_back(e.name, e.value);
     try {
-      FitResult g = fitter.fit(effects, nullptr, starts);
+      FitResult g = fit_pulse_shapes(fitter, effects, nullptr, starts);
       if (g.train_chi2 < best.train_chi2) best = std::move(g);
     } catch (const std::exception&) {
       // keep the multi-start's fit
