@@ -640,7 +640,8 @@ int write_indep_wav(const std::string& name, int seed, double duration, const st
 int where_left(const std::string& which, int seed) {
   namespace ig = ridgewatch::testsupport::indep;
   ig::Settings st = ig::short_test_record(which == "dead_zone" ? ig::Hidden::kDeadZone : ig::Hidden::kNone, 1e-7, 1);
-  st.seed = static_cast<std::uint64_t>(seed) * 104729u + 17u;
+  // seed < 0: the tests' numbering (ig::short_test_record's seed -seed), else the paste sweep's.
+  st.seed = seed < 0 ? static_cast<std::uint64_t>(-seed) : static_cast<std::uint64_t>(seed) * 104729u + 17u;
   if (const char* f = std::getenv("RW_SIZE_FACTOR")) st.size *= std::atof(f);
   st.half_sine_pulse = std::getenv("RW_HALF_SINE") != nullptr;
   const auto rec = ig::generate(st);
