@@ -593,8 +593,13 @@ TermDiscoveryResult fit_dead_zone(const ModelFitter& fitter, const FitResult& ba
   effects.push_back(opt.effect_name);
   FitResult best;
   bool ok = false;
+  // a_dz starts at the c0 the cold fits start from (the rig's): no stiffness left inside the gap, the
+  // dead zone proper. Its tail drifts to rest anywhere in the gap, and the rest offset carried into
+  // the next window depends steeply on the stiffness left there (c0 - a_dz): started at the linear
+  // fit's c0 (a few % below the rig's on a dead-zone record), LM stayed in a basin 10-20 % off.
+  const double a_start = fitter.rig().mean_mesh_stiffness_n_per_m;
   for (int k = 0; k < kGapGrid; ++k) {
-    const std::vector<std::pair<std::string, double>> starts = {{opt.effect_name + ".a_dz", c0},
+    const std::vector<std::pair<std::string, double>> starts = {{opt.effect_name + ".a_dz", a_start},
                                                                 {opt.effect_name + ".b_dz", x_rms * std::ldexp(1.0, -k)}};
     try {
       FitResult g = fitter.fit(effects, nullptr, starts);
