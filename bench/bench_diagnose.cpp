@@ -21,6 +21,11 @@
 //   bench_diagnose coverage [coulomb|drift] [seeds]   how often the fit's 95 % intervals cover the
 //                                        truth on the independent generator (default 20 seeds)
 //   bench_diagnose wav CASE SEED DURATION OUT.wav   one record of the independent generator (as paste)
+//   bench_diagnose where [dead_zone|none] SEED   the true model fitted (started at the truth, each pulse
+//                                        shape) on a 0.64 s record of the independent generator: held-out
+//                                        excess per ms after the impact and per held-out impact
+//                                        (SEED < 0: the tests' seed -SEED; RW_HALF_SINE: the generator's
+//                                        pulse a half-sine)
 //   bench_diagnose discover-time         10 s at 51.2 kHz with hidden cubic damping (independent
 //                                        generator): diagnose including term discovery, wall and CPU s
 #include <algorithm>
