@@ -45,6 +45,7 @@
 
 #include "cli/commands.hpp"
 #include "core/diagnosis/diagnose.hpp"
+#include "core/diagnosis/term_discovery.hpp"
 #include "core/model/custom_effect.hpp"
 #include "core/model/effect_registry.hpp"
 #include "core/model/mesh_dynamics.hpp"
@@ -655,14 +656,9 @@ int where_left(const std::string& which, int seed) {
   std::vector<std::string> effects;
   std::vector<std::pair<std::string, double>> starts;
   if (which == "dead_zone") {
-    rm::CustomEffectDefinition def;
-    def.name = "dz";
-    def.force = "a_dz * min(max(x, -b_dz), b_dz)";
-    def.kinks = {"x - b_dz", "x + b_dz"};
-    def.parameters = {{"a_dz", "N/m", 0.0, 1e10, 8e8, 0.0, ""}, {"b_dz", "m", 0.0, 1e-5, 1e-7, 0.0, ""}};
-    rm::set_user_effects({{rm::make_custom_effect(def), {}}});
+    // The form term discovery proposes, its defaults (the start) at the truth.
+    rm::set_user_effects({{rm::make_custom_effect(rd::dead_zone_definition("dz", 8.04e8, st.size)), {}}});
     effects = {"dz"};
-    starts = {{"dz.a_dz", 8.04e8}, {"dz.b_dz", st.size}};
   }
   const auto seg = rd::segment_recording(rec.y, st.sample_rate_hz, rig);
   const rd::ModelFitter fitter(rec.y, seg, rig);

@@ -153,13 +153,9 @@ TEST(TermDiscovery, DeadZoneOfTheRightFormFitsToTheNoise) {
   const auto rig = paper_rig();
   const auto seg = rd::subset_windows(rd::segment_recording(rec.y, kRate, rig), 16);
   const rd::ModelFitter fitter(rec.y, seg, rig);
-  rm::CustomEffectDefinition def;
-  def.name = "dead_zone";
-  def.force = "a_dz * min(max(x, -b_dz), b_dz)";
-  def.kinks = {"x - b_dz", "x + b_dz"};
-  def.parameters = {{"a_dz", "N/m", 0.0, 1e10, 8e8, 0.0, ""}, {"b_dz", "m", 0.0, 1e-5, 1e-7, 0.0, ""}};
-  rm::set_user_effects({{rm::make_custom_effect(def), {}}});
-  const auto f = rd::fit_pulse_shapes(fitter, {"dead_zone"}, nullptr, {{"dead_zone.a_dz", 8.04e8}, {"dead_zone.b_dz", 1e-7}});
+  // Defaults (the fit's start) at the truth: a_dz = c0 = 8.04e8 N/m, b_dz = 1e-7 m.
+  rm::set_user_effects({{rm::make_custom_effect(rd::dead_zone_definition("dead_zone", 8.04e8, 1e-7)), {}}});
+  const auto f = rd::fit_pulse_shapes(fitter, {"dead_zone"});
   rm::set_user_effects({});
   double a = 0.0, b = 0.0;
   for (const auto& e : f.estimates) {

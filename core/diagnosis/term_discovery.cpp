@@ -549,10 +549,6 @@ void verify_proposal(const ModelFitter& fitter, const FitResult& base_fit, TermD
   }
 }
 
-namespace {
-
-/// The dead-zone proposal's definition: a_dz on [0, 100 c0], b_dz on [0, 100 x_rms] (both fitted on a
-/// log scale), starts a_dz = c0, b_dz = x_rms, kinks at x = ±b_dz.
 model::CustomEffectDefinition dead_zone_definition(const std::string& name, double c0, double x_rms) {
   model::CustomEffectDefinition def;
   def.name = name;
@@ -563,8 +559,6 @@ model::CustomEffectDefinition dead_zone_definition(const std::string& name, doub
   def.parameters = {a, b};
   return def;
 }
-
-}  // namespace
 
 TermDiscoveryResult fit_dead_zone(const ModelFitter& fitter, const FitResult& base_fit, const TermDiscoveryOptions& opt) {
   TermDiscoveryResult res;

@@ -110,6 +110,11 @@ TermDiscoveryResult discover_terms(const ModelFitter& fitter, const FitResult& f
 /// when the fit does not pass diagnose's gain gate against `base_fit`.
 void verify_proposal(const ModelFitter& fitter, const FitResult& base_fit, TermDiscoveryResult& proposal);
 
+/// The dead-zone proposal's definition: force a_dz · min(max(x, -b_dz), b_dz), kinks at x = ±b_dz,
+/// a_dz (N/m) on [0, 100 c0] with default c0, b_dz (m) on [0, 100 x_rms] with default x_rms (both
+/// fitted on a log scale).
+model::CustomEffectDefinition dead_zone_definition(const std::string& name, double c0, double x_rms);
+
 /// The dead-zone family fitted by the nonlinear fitter directly (no first-order step): when a gap
 /// moves the record far from the linear model, one Gauss–Newton step from it picks the wrong gap and
 /// coefficient. `base_fit`'s model plus a_dz · min(max(x, -b_dz), b_dz) (kinks at x = ±b_dz declared,
