@@ -21,6 +21,11 @@
 //   bench_diagnose coverage [coulomb|drift] [seeds]   how often the fit's 95 % intervals cover the
 //                                        truth on the independent generator (default 20 seeds)
 //   bench_diagnose wav CASE SEED DURATION OUT.wav   one record of the independent generator (as paste)
+//   bench_diagnose where [dead_zone|none] SEED   the true model fitted (started at the truth, each pulse
+//                                        shape) on a 0.64 s record of the independent generator: held-out
+//                                        excess per ms after the impact and per held-out impact
+//                                        (SEED < 0: the tests' seed -SEED; RW_HALF_SINE: the generator's
+//                                        pulse a half-sine)
 //   bench_diagnose discover-time         10 s at 51.2 kHz with hidden cubic damping (independent
 //                                        generator): diagnose including term discovery, wall and CPU s
 #include <algorithm>
@@ -40,8 +45,10 @@
 
 #include "cli/commands.hpp"
 #include "core/diagnosis/diagnose.hpp"
+#include "core/diagnosis/term_discovery.hpp"
 #include "core/model/custom_effect.hpp"
 #include "core/model/effect_registry.hpp"
+#include "core/model/mesh_dynamics.hpp"
 #include "core/model/simulator.hpp"
 #include "../tests/support/indep_gear.hpp"
 #include "../tests/support/indep_signals.hpp"
@@ -634,6 +641,48 @@ int write_indep_wav(const std::string& name, int seed, double duration, const st
   return 2;
 }
 
+/// Where a fit of the true model leaves its error on a record of the independent generator (the paste
+/// sweep's seed numbering, 0.64 s at 25.6 kHz): held-out excess, excess per ms after the impact and per
+/// held-out impact. `which`: "dead_zone" (the dead-zone custom effect started at the truth, 1e-7 m ×
+/// RW_SIZE_FACTOR) or "none" (the linear model). RW_HALF_SINE: the generator's half-sine pulse.
+int where_left(const std::string& which, int seed) {
+  namespace ig = ridgewatch::testsupport::indep;
+  ig::Settings st = ig::short_test_record(which == "dead_zone" ? ig::Hidden::kDeadZone : ig::Hidden::kNone, 1e-7, 1);
+  // seed < 0: the tests' numbering (ig::short_test_record's seed -seed), else the paste sweep's.
+  st.seed = seed < 0 ? static_cast<std::uint64_t>(-seed) : static_cast<std::uint64_t>(seed) * 104729u + 17u;
+  if (const char* f = std::getenv("RW_SIZE_FACTOR")) st.size *= std::atof(f);
+  st.half_sine_pulse = std::getenv("RW_HALF_SINE") != nullptr;
+  const auto rec = ig::generate(st);
+  rm::RigParameters rig;
+  rig.crack_angle_rad = 1.0;
+  std::vector<std::string> effects;
+  std::vector<std::pair<std::string, double>> starts;
+  if (which == "dead_zone") {
+    // The form term discovery proposes, its defaults (the start) at the truth.
+    rm::set_user_effects({{rm::make_custom_effect(rd::dead_zone_definition("dz", 8.04e8, st.size)), {}}});
+    effects = {"dz"};
+  }
+  const auto seg = rd::segment_recording(rec.y, st.sample_rate_hz, rig);
+  const rd::ModelFitter fitter(rec.y, seg, rig);
+  rd::ModelFitter fitter_hann = fitter;
+  fitter_hann.set_pulse_shape(rm::PulseShape::kHann);
+  const auto fh = fitter_hann.fit(effects, nullptr, starts);
+  const auto fs = fitter.fit(effects, nullptr, starts);
+  const auto& f = fh.train_chi2 < fs.train_chi2 ? fh : fs;
+  const auto rep = rd::analyse_residual(fitter, f);
+  std::printf("%s seed %d%s: %zu impacts; half-sine: held-out excess %.4g, train chi2 %.1f; hann: %.4g, %.1f; chosen %s\n",
+              which.c_str(), seed, st.half_sine_pulse ? " (generator: half-sine pulse)" : "", seg.windows.size(),
+              fs.heldout_excess, fs.train_chi2, fh.heldout_excess, fh.train_chi2, rm::to_string(f.params.pulse_shape));
+  for (const auto& e : f.estimates) std::printf("  %s = %.5g (sd %.2g)\n", e.name.c_str(), e.value, e.sd);
+  std::printf("  excess per ms after the onset:");
+  for (double v : rep.excess_vs_time) std::printf(" %.3g", v);
+  std::printf("\n  held-out impacts (t s, force rel, excess):");
+  for (std::size_t i = 0; i < rep.impact_excess.size(); ++i)
+    std::printf(" [%.3f %.2f %.3g]", rep.impact_time_s[i], rep.impact_amplitude[i], rep.impact_excess[i]);
+  std::printf("\n");
+  return 0;
+}
+
 /// Timing of diagnose with term discovery: 10 s at 51.2 kHz, cubic damping 7e8 N s³/m³ hidden (the
 /// catalogue approximates it, so both discoveries and both verifying refits run), 16 impacts.
 int discover_timing() {
@@ -683,6 +732,7 @@ int main(int argc, char** argv) {
   if (mode == "discover-time") return discover_timing();
   if (mode == "coverage") return coverage(argc > 2 ? argv[2] : "coulomb", argc > 3 ? std::atoi(argv[3]) : 20);
   if (mode == "wav" && argc > 5) return write_indep_wav(argv[2], std::atoi(argv[3]), std::atof(argv[4]), argv[5]);
+  if (mode == "where" && argc > 3) return where_left(argv[2], std::atoi(argv[3]));
   if (mode == "paste")
     return paste_sweep(argc > 2 ? std::atoi(argv[2]) : 1, argc > 3 ? argv[3] : "", argc > 4 ? std::atof(argv[4]) : 2.0);
   if (mode == "discover")

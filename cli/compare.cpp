@@ -14,6 +14,7 @@
 #include "cli/commands.hpp"
 #include "cli/diagnosis_common.hpp"
 #include "cli/plot_diagnosis.hpp"
+#include "core/model/mesh_dynamics.hpp"
 
 namespace ridgewatch::cli {
 
@@ -39,6 +40,7 @@ void write_text(std::ostream& out, const diag::Loaded& l, const diagnosis::FitRe
     out << "  " << e.name << " = " << f(e.value) << " (95 %: " << f(e.ci95_lo) << " .. " << f(e.ci95_hi) << ")"
         << (e.at_bound ? " AT BOUND" : "") << "\n";
   }
+  out << "  impact pulse: " << model::to_string(fit.params.pulse_shape) << " (the better training fit of half_sine and hann)\n";
   out << "  held-out excess over the noise floor: " << f(fit.heldout_excess, 3) << " (0 = nothing left to explain), fit "
       << f(fit.fit_percent, 4) << " %\n";
   out << "  residual vs time after impact (excess per ms):";
@@ -67,7 +69,9 @@ int run_compare(const std::vector<std::string>& argv, std::ostream& out, std::os
   if (const auto d = args.value("--plots")) plot_dir = plots::prepare_dir(*d);
   diagnosis::ModelFitter fitter(l.y, l.seg, l.rig.rig);
   diag::apply_settings(fitter, l);
-  const diagnosis::FitResult fit = diag::guard_user_effects(*args.value("--rig"), [&] { return fitter.fit(l.effects); });
+  // The impact pulse shape (half-sine or Hann) is chosen by the training fit (model_fit.hpp).
+  const diagnosis::FitResult fit =
+      diag::guard_user_effects(*args.value("--rig"), [&] { return diagnosis::fit_pulse_shapes(fitter, l.effects); });
   const diagnosis::ResidualReport rep = diagnosis::analyse_residual(fitter, fit);
   const double c0_nom = l.rig.rig.mean_mesh_stiffness_n_per_m;
   const auto& c0 = fit.estimates[0];
@@ -99,6 +103,7 @@ int run_compare(const std::vector<std::string>& argv, std::ostream& out, std::os
     }
     j["correlation"] = corr;
     j["converged"] = fit.converged;
+    j["pulse_shape"] = model::to_string(fit.params.pulse_shape);
     j["heldout_excess"] = fit.heldout_excess;
     j["fit_percent"] = fit.fit_percent;
     j["residual"] = diag::report_json(rep);

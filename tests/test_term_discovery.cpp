@@ -6,6 +6,8 @@
 //    residual and proposes a force containing v³ with the right sign; the proposal pasted into a rig
 //    file (the real CLI: `diagnose --json` then `compare --with discovered_force`) ends with a held-out
 //    excess below 0.1 (the error falls);
+//  * a 0.1 µm dead zone: the direct fit from the grid's gaps finds gap and coefficient, and the force of
+//    that form, fitted with the pulse shape chosen by the training fit, reaches the 0.1 target;
 //  * a hidden drift of the mesh stiffness: the proposal contains t_abs·x, stiffening;
 //  * a control: no proposal.
 #include <gtest/gtest.h>
@@ -24,6 +26,9 @@
 #include "cli_runner.hpp"
 #include "core/diagnosis/diagnose.hpp"
 #include "core/diagnosis/term_discovery.hpp"
+#include "core/model/custom_effect.hpp"
+#include "core/model/effect_registry.hpp"
+#include "core/model/mesh_dynamics.hpp"
 #include "support/indep_gear.hpp"
 #include "support/indep_signals.hpp"
 
@@ -113,7 +118,8 @@ TEST(TermDiscovery, DeadZoneGivesTheDeadZoneTerm) {
 // the direct fit from the grid's gaps finds the gap and the coefficient. 8 impacts (4 fitted).
 // Tolerances: 16 impacts on two seeds gave a_dz within 2.2 % and b_dz within 2 % of the truth
 // (README); 10 % and 20 % leave room for half the impacts. The excess bound 1 is far below the
-// linear model's (> 100) and above the ~0.2-0.4 the Hann pulse of the generator leaves.
+// linear model's (> 100) and above the 0.16 measured here (0.50 before the gap between windows was
+// integrated and the pulse shape chosen).
 TEST(TermDiscovery, DeadZoneFittedFromTheGridFindsGapAndCoefficient) {
   const auto rec = ig::generate(ig::short_test_record(ig::Hidden::kDeadZone, 1e-7, 1));
   const auto rig = paper_rig();
@@ -130,6 +136,39 @@ TEST(TermDiscovery, DeadZoneFittedFromTheGridFindsGapAndCoefficient) {
   EXPECT_EQ(r.definition.kinks, (std::vector<std::string>{"x - b_dz", "x + b_dz"}));
   std::printf("dead zone fitted from the grid: a_dz %.4g, b_dz %.4g, held-out excess %.3g -> %.3g\n",
               r.terms[0].coefficient, r.terms[0].gap, linear.heldout_excess, r.verified_excess);
+}
+
+// The dead-zone force in the form term discovery proposes, fitted as compare fits a pasted block (all
+// 16 impacts, the pulse shape chosen by the training fit), on a 0.1 µm dead zone of the independent
+// generator: the held-out excess must reach the 0.1 target. Two things stood in the way, each
+// checked here: between windows the model's tail was decayed in closed form (the linear mesh's),
+// while the generator's tail falls into the gap and drifts to rest anywhere in it, which shapes the
+// next response (held-out excess 0.2-0.45 with the truth's force); and the generator's Hann pulse
+// drives the mesh through the gap while it acts, where a half-sine of fitted length is not the same
+// (0.12-0.21 left, mostly in the first ms). Measured with both fixed on the paste sweep's three
+// records: -0.02 ... 0.07 (README). Started at the truth: from a_dz = 8e8 (0.5 % low) LM ends in
+// another basin at 0.37 (the rest offset the gap integration carries depends steeply on the
+// stiffness left inside the gap, c0 - a_dz; README "Term discovery"), so this checks what the model
+// can describe, not the search. Tolerances: 3 % on a_dz and b_dz (measured within 0.3 %).
+TEST(TermDiscovery, DeadZoneOfTheRightFormFitsToTheNoise) {
+  const auto rec = ig::generate(ig::short_test_record(ig::Hidden::kDeadZone, 1e-7, 1));
+  const auto rig = paper_rig();
+  const auto seg = rd::subset_windows(rd::segment_recording(rec.y, kRate, rig), 16);
+  const rd::ModelFitter fitter(rec.y, seg, rig);
+  // Defaults (the fit's start) at the truth: a_dz = c0 = 8.04e8 N/m, b_dz = 1e-7 m.
+  rm::set_user_effects({{rm::make_custom_effect(rd::dead_zone_definition("dead_zone", 8.04e8, 1e-7)), {}}});
+  const auto f = rd::fit_pulse_shapes(fitter, {"dead_zone"});
+  rm::set_user_effects({});
+  double a = 0.0, b = 0.0;
+  for (const auto& e : f.estimates) {
+    if (e.name == "dead_zone.a_dz") a = e.value;
+    if (e.name == "dead_zone.b_dz") b = e.value;
+  }
+  std::printf("dead zone of the right form: pulse %s, a_dz %.4g, b_dz %.4g, held-out excess %.3g\n",
+              rm::to_string(f.params.pulse_shape), a, b, f.heldout_excess);
+  EXPECT_LT(f.heldout_excess, 0.1);
+  EXPECT_NEAR(a, 8.04e8, 0.03 * 8.04e8);
+  EXPECT_NEAR(b, 1e-7, 0.03e-7);
 }
 
 // Hidden cubic damping (7e8 N s³/m³: at the impact's peak velocity 3.5x the linear damping force), end to end through the CLI as a user would: diagnose proposes

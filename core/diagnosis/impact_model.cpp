@@ -183,12 +183,15 @@ WindowSimulator::WindowSimulator(const model::RigParameters& rig, const PhysicsV
     const model::EffectDescriptor* d = model::find_effect(name);
     if (d == nullptr) throw std::invalid_argument("unknown effect '" + name + "'");
     effects_.push_back(d->create(values, rig_));
+    if (effects_.back()->has_switching() && model::find_catalogue_effect(name) == nullptr) integrate_gaps_ = true;
     if (auto m = effects_.back()->auxiliary_mode()) f_max = std::max(f_max, m->frequency_hz);
   }
   // Candidates are dynamics effects (impact_model.hpp); the mesh terms from their phasors.
   const std::vector<model::EffectKind> kinds(effects_.size(), model::EffectKind::kDynamics);
   model_ = std::make_unique<model::MeshModel>(rig_, effects_, kinds,
-                                              physics.pulse_s > 0.0 ? physics.pulse_s : rig_.impact_duration_s, true);
+                                              physics.pulse_s > 0.0 ? physics.pulse_s : rig_.impact_duration_s, true,
+                                              physics.pulse_shape);
+  if (model_->stick_limit_n() > 0.0) integrate_gaps_ = true;
   // RK4 step: ω h <= 0.25 rad at the highest modelled frequency (one step per sample at 25.6 kHz up
   // to 1 kHz). On the linear oscillator RK4's error is systematic, not noise-like: a frequency low by
   // (ωh)^4/120 (1.6e-5 at ωh = 0.21) and an amplitude loss of (ωh)^6/144 per step (Δζ = 3e-6). Both

@@ -86,6 +86,8 @@ struct PhysicsValues {
   /// is no exact half-sine, and a short pulse's shape acts on the response through its length and
   /// second moment (a Hann pulse of length τ equals a half-sine of 0.83 τ to second order in ωτ).
   double pulse_s = 0.0;
+  /// Shape of the impact pulse (core/model/mesh_dynamics.hpp): a choice of the fit, not fitted by LM.
+  model::PulseShape pulse_shape = model::PulseShape::kHalfSine;
   std::vector<std::pair<std::string, model::EffectValues>> effects;  ///< complete value sets
 };
 
@@ -129,6 +131,14 @@ class WindowSimulator {
   /// Closed-form free decay of a transient over dt seconds (both modes linear, Eq. A2 with constant ζ).
   ModelState propagate(const ModelState& s, double dt_s, double t_abs_s) const;
   bool has_dry_friction() const { return model_->stick_limit_n() > 0.0; }
+  /// Whether the motion between two windows must be integrated (ModelFitter's carried state) rather
+  /// than decayed in closed form: the closed form is the linear mesh's, right for the small leftover
+  /// tail of a model that is linear near rest. Not so with dry friction (the mesh sticks at an offset
+  /// in the friction band) or a user-defined force with declared kinks (a dead zone or clearance
+  /// around the loaded contact: the tail falls into the gap, where the spring force vanishes, and
+  /// drifts to rest at an offset anywhere in it). The catalogue's other switching effect, contact loss,
+  /// switches only when the dynamic deflection exceeds the static one, never in a small tail.
+  bool integrates_gaps() const { return integrate_gaps_; }
   double damping_ratio_at(double t_abs_s) const { return model_->damping_ratio(t_abs_s); }
 
  private:
@@ -149,6 +159,7 @@ class WindowSimulator {
   PhysicsValues physics_;
   double fs_ = 0.0;
   int substeps_ = 1;
+  bool integrate_gaps_ = false;
   double m_red_ = 0.0, crit_ = 0.0, q_s_ = 0.0, sens_ = 0.0;
   std::vector<std::unique_ptr<model::Effect>> effects_;
   std::unique_ptr<model::MeshModel> model_;

@@ -102,8 +102,14 @@ PhysicsValues ModelFitter::physics(const std::vector<GlobalParameter>& layout, c
   return p;
 }
 
+PhysicsValues ModelFitter::physics(const std::vector<GlobalParameter>& layout, const FitParams& p) const {
+  PhysicsValues v = physics(layout, p.u);
+  v.pulse_shape = p.pulse_shape;
+  return v;
+}
+
 bool ModelFitter::frees_heldout_nuisances(const FitResult& f) const {
-  return friction_carry_fit_ && WindowSimulator(rig_, physics(f.layout, f.params.u), seg_.sample_rate_hz).has_dry_friction();
+  return friction_carry_fit_ && WindowSimulator(rig_, physics(f.layout, f.params), seg_.sample_rate_hz).has_dry_friction();
 }
 
 void ModelFitter::set_parameter_settings(const std::map<std::string, ParameterSetting>& settings) {
@@ -164,10 +170,11 @@ ModelState ModelFitter::carry(const WindowSimulator& sim, std::size_t w, const C
   const auto& e = c.end[static_cast<std::size_t>(pred)];
   const double fs = seg_.sample_rate_hz;
   const auto& pw = seg_.windows[static_cast<std::size_t>(pred)];
-  if (sim.has_dry_friction()) {
+  if (sim.integrates_gaps()) {
     // Dry friction: the leftover motion stops somewhere in the gap and the mesh stays stuck at an
     // offset within the friction band, which shapes the next response (up to F_c/c0 ω of velocity,
-    // a few % of the peak). The closed-form decay cannot say where it stops: integrate the gap.
+    // a few % of the peak). A dead zone (a user-defined force with kinks) lets the tail drift to rest
+    // anywhere in its gap. The closed-form decay cannot say where it stops: integrate the gap.
     if (e.stopped) {
       // Stuck at an offset: the mesh stays there until the impact, but an auxiliary mode (second_mode)
       // keeps ringing down through the gap (it is not held by the friction).
@@ -208,7 +215,7 @@ void ModelFitter::simulate_window(const WindowSimulator& sim, std::size_t w, con
 }
 
 ModelFitter::Linearisation ModelFitter::linearise(const FitResult& fit) const {
-  const WindowSimulator sim(rig_, physics(fit.layout, fit.params.u), seg_.sample_rate_hz);
+  const WindowSimulator sim(rig_, physics(fit.layout, fit.params), seg_.sample_rate_hz);
   const std::size_t nw = seg_.windows.size();
   Linearisation lin;
   lin.states.resize(nw);
@@ -238,7 +245,7 @@ ModelFitter::Linearisation ModelFitter::linearise(const FitResult& fit) const {
 }
 
 ModelFitter::Chain ModelFitter::evaluate(const std::vector<GlobalParameter>& layout, const FitParams& p) const {
-  const WindowSimulator sim(rig_, physics(layout, p.u), seg_.sample_rate_hz);
+  const WindowSimulator sim(rig_, physics(layout, p), seg_.sample_rate_hz);
   Chain c;
   c.out.resize(seg_.windows.size());
   c.end.resize(seg_.windows.size());
@@ -253,7 +260,7 @@ void ModelFitter::initialise_nuisances(FitParams& p, const std::vector<GlobalPar
   const std::size_t nw = seg_.windows.size();
   p.ln_force.assign(nw, 0.0);
   p.shift.assign(nw, 0.0);
-  const WindowSimulator sim(rig_, physics(layout, p.u), seg_.sample_rate_hz);
+  const WindowSimulator sim(rig_, physics(layout, p), seg_.sample_rate_hz);
   const double fs = seg_.sample_rate_hz;
   std::vector<double> m;
   double proj_sum = 0.0;
@@ -339,7 +346,7 @@ struct FitProblem {
   /// Model output of the needed windows (ModelFitter::evaluate restricted to `needed`).
   ModelFitter::Chain chain(const FitParams& p) const {
     const auto& seg = fitter->segmentation();
-    const WindowSimulator sim(fitter->rig(), fitter->physics(layout, p.u), seg.sample_rate_hz);
+    const WindowSimulator sim(fitter->rig(), fitter->physics(layout, p), seg.sample_rate_hz);
     ModelFitter::Chain c;
     c.out.resize(seg.windows.size());
     c.end.resize(seg.windows.size());
@@ -348,7 +355,7 @@ struct FitProblem {
     return c;
   }
   static bool same(const FitParams& a, const FitParams& b) {
-    return a.polarity == b.polarity && a.u.size() == b.u.size() && a.u == b.u && a.ln_force == b.ln_force &&
+    return a.polarity == b.polarity && a.pulse_shape == b.pulse_shape && a.u.size() == b.u.size() && a.u == b.u && a.ln_force == b.ln_force &&
            a.shift == b.shift;
   }
   const ModelFitter::Chain& chain_cached(const FitParams& p) const {
@@ -423,7 +430,7 @@ struct FitProblem {
       }
     }
     const auto& seg = fitter->segmentation();
-    const WindowSimulator sim(fitter->rig(), fitter->physics(layout, p.u), seg.sample_rate_hz);
+    const WindowSimulator sim(fitter->rig(), fitter->physics(layout, p), seg.sample_rate_hz);
     std::vector<double> m, m2;
     std::vector<double> r;
     for (std::size_t w : free_windows) {
@@ -598,6 +605,7 @@ bool ModelFitter::start_values(const std::vector<GlobalParameter>& L, const FitR
   // Start values: the rig's ζ and c0, the candidates' starts, the user's settings; then a warm
   // start's values by name and the overrides. Returns whether the mesh phase came from `warm`.
   p.u = Eigen::VectorXd::Zero(static_cast<Eigen::Index>(L.size()));
+  p.pulse_shape = pulse_shape_;
   bool phase_known = false;
   for (std::size_t i = 0; i < L.size(); ++i) {
     double start = 0.0;
@@ -638,7 +646,7 @@ void ModelFitter::restart_bad_windows(FitProblem& train, FitParams& p, int budge
   // start came from the grid at the starting physics (a Duffing start far from the truth, say). Each
   // is restarted from the onset grid at the fitted physics if that fits it better, then LM again.
   {
-    const WindowSimulator sim(rig_, physics(L, p.u), seg_.sample_rate_hz);
+    const WindowSimulator sim(rig_, physics(L, p), seg_.sample_rate_hz);
     // The training windows and their predecessors at p: LM's latest evaluation, as a rule.
     const Chain& c = train.chain_cached(p);
     bool changed = false;
@@ -743,7 +751,7 @@ ModelFitter::Chain ModelFitter::heldout_refit(const std::vector<GlobalParameter>
   // joint optimum up to the tail's second-order effect, at a cost linear in the number of impacts
   // (the joint problem's dense QR grows with its cube).
   {
-    const WindowSimulator sim(rig_, physics(L, p.u), seg_.sample_rate_hz);
+    const WindowSimulator sim(rig_, physics(L, p), seg_.sample_rate_hz);
     Chain chain;
     chain.out.resize(nw);
     chain.end.resize(nw);
@@ -841,7 +849,7 @@ FitResult ModelFitter::fit(const std::vector<std::string>& effects, const FitRes
   // ridgewatch's own simulator; at the true held-out nuisances the same fit lands on the truth.
   // Their rows stay held out, so the held-out judgement is unchanged; they reach the training
   // rows only through the carried state.
-  const bool free_heldout = friction_carry_fit_ && WindowSimulator(rig_, physics(L, p.u), seg_.sample_rate_hz).has_dry_friction();
+  const bool free_heldout = friction_carry_fit_ && WindowSimulator(rig_, physics(L, p), seg_.sample_rate_hz).has_dry_friction();
   for (std::size_t w = 0; w < nw; ++w) {
     if (!is_heldout(w)) train.row_windows.push_back(w);
     if (!is_heldout(w) || free_heldout) train.free_windows.push_back(w);
@@ -880,6 +888,20 @@ FitResult ModelFitter::fit(const std::vector<std::string>& effects, const FitRes
   const Chain heldout = heldout_refit(L, p);
   heldout_statistics(p, heldout, res);
   return res;
+}
+
+FitResult fit_pulse_shapes(const ModelFitter& fitter, const std::vector<std::string>& effects, const FitResult* warm,
+                           const std::vector<std::pair<std::string, double>>& start_overrides, bool pulse_with_mesh) {
+  FitResult best;
+  bool have = false;
+  for (const model::PulseShape shape : {model::PulseShape::kHalfSine, model::PulseShape::kHann}) {
+    ModelFitter f = fitter;
+    f.set_pulse_shape(shape);
+    FitResult r = f.fit(effects, warm, start_overrides, pulse_with_mesh);
+    if (!have || r.train_chi2 < best.train_chi2) best = std::move(r);
+    have = true;
+  }
+  return best;
 }
 
 }  // namespace ridgewatch::diagnosis

@@ -48,6 +48,9 @@ struct FitParams {
   std::vector<double> ln_force;    ///< per window: ln(F / F_nominal)
   std::vector<double> shift;       ///< per window: onset - detected onset, samples
   double polarity = 1.0;
+  /// Impact pulse shape (not fitted by LM: a choice, ModelFitter::set_pulse_shape and
+  /// fit_pulse_shapes below).
+  model::PulseShape pulse_shape = model::PulseShape::kHalfSine;
 };
 
 struct ParameterEstimate {
@@ -109,6 +112,10 @@ class ModelFitter {
   void set_friction_carry_fit(bool on) { friction_carry_fit_ = on; }
   /// Whether fit() frees the held-out nuisances for the model of `f` (it has dry friction).
   bool frees_heldout_nuisances(const FitResult& f) const;
+  /// The impact pulse shape of the fits that follow (half-sine by default); a fit keeps its own in
+  /// FitParams, so its later evaluations do not depend on this setting. fit_pulse_shapes() chooses.
+  void set_pulse_shape(model::PulseShape shape) { pulse_shape_ = shape; }
+  model::PulseShape pulse_shape() const { return pulse_shape_; }
 
   /// Fits a model. `warm` (optional): a previous result whose global values (by name) and nuisances
   /// start this fit. `start_overrides`: starting values by global name (e.g. a second mode's
@@ -125,8 +132,10 @@ class ModelFitter {
   std::span<const double> data() const { return y_; }
   const model::RigParameters& rig() const { return rig_; }
 
-  /// Physical values for a parameter vector (the simulator's input).
+  /// Physical values for a parameter vector (the simulator's input; the half-sine pulse).
   PhysicsValues physics(const std::vector<GlobalParameter>& layout, const Eigen::VectorXd& u) const;
+  /// The same with the pulse shape of `p`.
+  PhysicsValues physics(const std::vector<GlobalParameter>& layout, const FitParams& p) const;
 
   struct Chain {
     std::vector<std::vector<double>> out;
@@ -179,6 +188,19 @@ class ModelFitter {
   model::RigParameters rig_;
   std::map<std::string, ParameterSetting> settings_;
   bool friction_carry_fit_ = true;
+  model::PulseShape pulse_shape_ = model::PulseShape::kHalfSine;
 };
+
+/// The impact pulse shape as a nuisance chosen by the training fit. No real impact is an exact
+/// half-sine: a tooth contact that loads and unloads smoothly is closer to a raised cosine. The fitted
+/// pulse length absorbs the shape where the model is linear (a Hann pulse of length τ acts as a
+/// half-sine of 0.83 τ to second order in ωτ), not where the response during the pulse is nonlinear
+/// (a dead zone the impact drives the mesh through). Fits `effects` (as fitter.fit, same arguments)
+/// with each shape of model::PulseShape and returns the fit with the lower training χ² (the same
+/// parameters and rows, so χ² compares them; a tie keeps the half-sine). Twice the cost of one fit.
+FitResult fit_pulse_shapes(const ModelFitter& fitter, const std::vector<std::string>& effects,
+                           const FitResult* warm = nullptr,
+                           const std::vector<std::pair<std::string, double>>& start_overrides = {},
+                           bool pulse_with_mesh = false);
 
 }  // namespace ridgewatch::diagnosis

@@ -110,12 +110,18 @@ TermDiscoveryResult discover_terms(const ModelFitter& fitter, const FitResult& f
 /// when the fit does not pass diagnose's gain gate against `base_fit`.
 void verify_proposal(const ModelFitter& fitter, const FitResult& base_fit, TermDiscoveryResult& proposal);
 
+/// The dead-zone proposal's definition: force a_dz · min(max(x, -b_dz), b_dz), kinks at x = ±b_dz,
+/// a_dz (N/m) on [0, 100 c0] with default c0, b_dz (m) on [0, 100 x_rms] with default x_rms (both
+/// fitted on a log scale).
+model::CustomEffectDefinition dead_zone_definition(const std::string& name, double c0, double x_rms);
+
 /// The dead-zone family fitted by the nonlinear fitter directly (no first-order step): when a gap
 /// moves the record far from the linear model, one Gauss–Newton step from it picks the wrong gap and
 /// coefficient. `base_fit`'s model plus a_dz · min(max(x, -b_dz), b_dz) (kinks at x = ±b_dz declared,
-/// so the integrator locates them) is fitted from a_dz = c0 (no dynamic force inside the gap) and
-/// each gap of the discovery grid b = x_rms · 2^-k, k = 0..4, cold (c0, ζ from the rig's, as compare
-/// starts a pasted block); the fit with the lowest held-out excess is kept. Returns a verified
+/// so the integrator locates them) is fitted from a_dz = the rig's c0 (no dynamic force inside the
+/// gap) and each gap of the discovery grid b = x_rms · 2^-k, k = 0..4, cold (c0, ζ from the rig's, as
+/// compare starts a pasted block); the fit with the lowest training χ² is refitted cold from its own
+/// a_dz and b_dz with each impact pulse shape (fit_pulse_shapes, model_fit.hpp). Returns a verified
 /// proposal (verified_excess, verified_fit set) or, when no fit passes diagnose's gain gate against
 /// `base_fit`, proposed = false with a note. The thread's user effects are restored.
 TermDiscoveryResult fit_dead_zone(const ModelFitter& fitter, const FitResult& base_fit,

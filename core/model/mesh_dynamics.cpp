@@ -8,12 +8,17 @@ namespace ridgewatch::model {
 
 namespace {
 constexpr double kTwoPi = 2.0 * std::numbers::pi;
+// Peak of the Hann pulse with the half-sine's impulse: (4/π) F sin²(πu) integrates to 2 F τ / π.
+constexpr double kHannPeak = 4.0 / std::numbers::pi;
 using cd = std::complex<double>;
 int sign_of(double g) { return g >= 0.0 ? 1 : -1; }
 }  // namespace
 
+const char* to_string(PulseShape shape) { return shape == PulseShape::kHann ? "hann" : "half_sine"; }
+
 MeshModel::MeshModel(const RigParameters& rig, const std::vector<std::unique_ptr<Effect>>& effects,
-                     const std::vector<EffectKind>& kinds, double pulse_s, bool phasor_terms)
+                     const std::vector<EffectKind>& kinds, double pulse_s, bool phasor_terms,
+                     PulseShape pulse_shape)
     : m_red_(rig.reduced_mass_kg()),
       c0_(rig.mean_mesh_stiffness_n_per_m),
       zeta_(rig.damping_ratio),
@@ -22,6 +27,7 @@ MeshModel::MeshModel(const RigParameters& rig, const std::vector<std::unique_ptr
       q_s_(rig.static_deflection_m()),
       teeth_(static_cast<double>(rig.pinion_teeth)),
       pulse_s_(pulse_s),
+      pulse_shape_(pulse_shape),
       use_phasors_(phasor_terms) {
   for (std::size_t i = 0; i < effects.size(); ++i) {
     const Effect* e = effects[i].get();
@@ -190,7 +196,9 @@ double MeshIntegrator::impact_force_n(double t_s) const {
     const ImpactPulse& imp = pulses_[k];
     if (imp.t_s > t_s) break;
     const double u = (t_s - imp.t_s) / model_.pulse_s_;
-    if (u < 1.0) f += imp.peak_force_n * std::sin(std::numbers::pi * u);
+    if (u >= 1.0) continue;
+    const double s = std::sin(std::numbers::pi * u);
+    f += model_.pulse_shape_ == PulseShape::kHann ? kHannPeak * imp.peak_force_n * s * s : imp.peak_force_n * s;
   }
   return f;
 }

@@ -32,7 +32,15 @@
 
 namespace ridgewatch::model {
 
-/// A half-sine force pulse F sin(π (t - t_s)/τ) on [t_s, t_s + τ] (the cracked tooth's impact).
+/// Shape of the impact force pulse on [t_s, t_s + τ], u = (t - t_s)/τ, both with the impulse 2 F τ / π
+/// of a half-sine of peak F (the impact's size F means the same in both):
+///   kHalfSine  F sin(π u)            (the simulator's pulse; a force that jumps in slope at the edges)
+///   kHann      (4/π) F sin²(π u)     (raised cosine: force and slope start and end at zero, as a
+///                                     contact that loads and unloads smoothly)
+enum class PulseShape { kHalfSine, kHann };
+const char* to_string(PulseShape shape);
+
+/// A force pulse of peak-equivalent F (PulseShape) on [t_s, t_s + τ] (the cracked tooth's impact).
 struct ImpactPulse {
   double t_s = 0.0;           ///< onset (s)
   double peak_force_n = 0.0;  ///< F (N)
@@ -53,12 +61,13 @@ class MeshModel {
   static constexpr int kPhasorOrders = 4;  ///< mesh orders of the phasor representation
 
   /// `effects` (their kinds in `kinds`, same order) must outlive the model; the rig must be valid.
-  /// `pulse_s`: length of the half-sine impact pulse (s). `phasor_terms`: evaluate the mesh-periodic
+  /// `pulse_s`: length of the impact pulse (s), `pulse_shape` its shape. `phasor_terms`: evaluate the mesh-periodic
   /// terms from their Fourier phasors of orders 1..4 (one sin/cos per evaluation instead of a call per
   /// harmonic and effect) when these reproduce the effects' own functions to 1e-9 of the terms' size;
   /// false: always call the effects' functions (simulate: its records stay byte-identical).
   MeshModel(const RigParameters& rig, const std::vector<std::unique_ptr<Effect>>& effects,
-            const std::vector<EffectKind>& kinds, double pulse_s, bool phasor_terms);
+            const std::vector<EffectKind>& kinds, double pulse_s, bool phasor_terms,
+            PulseShape pulse_shape = PulseShape::kHalfSine);
 
   /// Factor on the nominal shaft speed at time t (kinematic effects).
   double speed_factor(double t_s) const;
@@ -101,6 +110,7 @@ class MeshModel {
   std::vector<char> sticks_;                 // by effect: stick_force_limit_n() > 0
   std::vector<const Effect*> damping_offsets_;  // effects that offset ζ
   double m_red_, c0_, zeta_, crit_, static_force_, q_s_, teeth_, pulse_s_;
+  PulseShape pulse_shape_ = PulseShape::kHalfSine;
   double stick_limit_n_ = 0.0;
   bool has_aux_ = false;
   double aux_w_ = 0.0, aux_zeta_ = 0.0, aux_w2_ = 0.0, aux_2zw_ = 0.0, aux_part_ = 0.0;
