@@ -91,22 +91,20 @@
 //
 // Noise: the caller gives the in-band power of the samples between impacts (pre-trigger samples);
 // it is converted to the white-noise variance the CWT rows' noise gains refer to. Where decays overlap
-// the next impact (the detector in innovation mode) that power holds the previous impact's ringing,
-// 12-16 dB over the noise at 854 Hz, 25 / s, zeta 0.002, and every event after the first was low_snr.
-// The caller then also gives the innovation's power over the same span (the band envelope minus the
-// ringing's one-pole continuation: ImpactDetector::innovation_noise_power), and the analysis uses it
-// (the smaller of the two) when the window after the onset resolves the fit band into at least 9 DFT
-// bins, T * 2 ml_band_rel f_expected >= 9 (StreamProcessor's rule for the shortest decay window: the
-// fit then keeps its two residual terms). The ringing itself does not bias zeta: the
+// the next impact (the detector in innovation mode) that power holds the previous impact's ringing
+// (12-16 dB over the noise at 854 Hz, 25 / s, zeta 0.002), which made every event after the first
+// low_snr. The caller then also gives the innovation's power over the same span (the band envelope
+// minus the ringing's one-pole continuation: ImpactDetector::innovation_noise_power), and the analysis
+// uses it (the smaller of the two) when the window after the onset holds at least 9 DFT bins of the
+// ML fit band, T * 2 ml_band_rel f_expected >= 9 (StreamProcessor's rule for the shortest decay
+// window: the fit then keeps its two residual terms). The ringing itself does not bias zeta: the
 // previous decay is the same mode with the same pole, and the sum of two such decays is one decay.
-// The floor with the ringing also holds the lines near the mode, which the innovation follows almost
-// as it follows the ringing, and on shorter segments a line is the ok promise's problem: with fewer
-// bins the fit keeps one residual term (a constant), which does not take up the slope of a nearby
-// line's leakage, and cannot resolve a line within its bins. Measured with the innovation floor on
-// every segment (bench_ok_coverage sweep 3 F RATE ZETA): 854 Hz, 25 / s, zeta 0.002 (32 ms: 6.5 bins,
-// the impact-locked 550 / 1100 Hz mesh lines) ok events 2-3 % high, 23 of 205 ok intervals missed;
-// 2.5 kHz, 120 / s, zeta 0.01 (4.7 ms: 213 Hz bins, the 2640 Hz mesh line) 50 ok events, 16-25 % low,
-// all 50 missed. There the floor with the ringing stays (low_snr), as before.
+// But the floor with the ringing also holds the lines near the mode, which the innovation follows
+// almost as it follows the ringing, and on shorter windows it is what keeps them from ok: with fewer
+// bins the fit keeps one residual term, a constant, which does not take up the slope of a nearby
+// line's leakage (854 Hz, 25 / s, 32 ms: the impact-locked 550 / 1100 Hz mesh lines put zeta 2-3 %
+// high on every event), and it cannot resolve a line within its bins (2.5 kHz, 120 / s, 4.7 ms: the
+// 2640 Hz mesh line, zeta 16-25 % low with +-3 % intervals). README, survey, "decays that overlap".
 #pragma once
 
 #include <complex>
