@@ -687,7 +687,7 @@ TEST(PipelineIndep, OverlappingDecaysAreOkAfterTheFirstImpact) {
 //     550 / 1100 Hz mesh lines (zeta 2-3 % high on every event; 16 of 112 ok intervals missed over 6 s
 //     with the innovation's floor and no further check). (b) 2.5 kHz, 120 / s, zeta 0.01, 40 dB, 25.6 kHz,
 //     1 s (seed 176): 4.7 ms ML segments, the 2640 Hz mesh line within their bins (50 ok events, zeta
-//     16-25 % low, all 50 intervals missed). Asserted: every event a true impact, and no ok interval
+//     a median 31 % low, all 50 intervals missed). Asserted: every event a true impact, and no ok interval
 //     misses (at most one for (a), a 5 % interval's share of ~20 events). With the innovation's floor on
 //     every window these records gave 38 ok with 6 misses (a) and 8 ok with 8 misses (b); now 0 ok.
 TEST(PipelineIndep, OverlapFloorKeepsTheOkPromiseBesideLines) {

@@ -104,7 +104,7 @@
 // bins the fit keeps one residual term, a constant, which does not take up the slope of a nearby
 // line's leakage (854 Hz, 25 / s, 32 ms: the impact-locked 550 / 1100 Hz mesh lines put zeta 2-3 %
 // high on every event), and it cannot resolve a line within its bins (2.5 kHz, 120 / s, 4.7 ms: the
-// 2640 Hz mesh line, zeta 16-25 % low with +-3 % intervals). README, survey, "decays that overlap".
+// 2640 Hz mesh line, zeta a median 31 % low with +-2-8 % intervals). README, survey, "decays that overlap".
 #pragma once
 
 #include <complex>

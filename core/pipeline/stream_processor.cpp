@@ -153,7 +153,8 @@ struct StreamProcessor::Impl {
     double median() const {
       std::array<double, kNoiseHistory> tmp = v;
       const std::size_t mid = count / 2;
-      std::nth_element(tmp.begin(), tmp.begin() + static_cast<std::ptrdiff_t>(mid), tmp.begin() + static_cast<std::ptrdiff_t>(count));
+      std::nth_element(tmp.begin(), tmp.begin() + static_cast<std::ptrdiff_t>(mid),
+                       tmp.begin() + static_cast<std::ptrdiff_t>(count));
       return tmp[mid];
     }
   };
