@@ -8,7 +8,8 @@
 //   bench_ok_coverage case FS F RATE ZETA SNR SEED [float] [wobble] [-v]   one record (-v: every event)
 //   bench_ok_coverage tail [SEEDS]    decays that fill the interval: 854 Hz, 25/40/60 per second,
 //                                     zeta 0.002/0.005/0.01, SNR 10/25/40 dB rotating
-//   bench_ok_coverage sweep [SEEDS]   the survey sweep's records (bench_survey sweep numbering)
+//   bench_ok_coverage sweep [SEEDS [F [RATE [ZETA]]]]   the survey sweep's records (bench_survey
+//                                     sweep numbering; F, RATE, ZETA: only that cell's, 0 = any)
 // Records and proposals are kept in $TMPDIR/bench_ok_coverage/ and a proposal found there is reused,
 // so that two builds of the analyzer can be compared on the same configurations.
 #include <algorithm>
@@ -171,6 +172,8 @@ int main(int argc, char** argv) {
   if (mode == "sweep") {
     // The records of `bench_survey sweep SEEDS` (same numbering, seeds, rates and formats).
     const int seeds = argc > 2 ? std::atoi(argv[2]) : 3;
+    const double only_f = argc > 3 ? std::atof(argv[3]) : 0, only_rate = argc > 4 ? std::atof(argv[4]) : 0,
+                 only_zeta = argc > 5 ? std::atof(argv[5]) : 0;
     int n = 0;
     for (double f : {300.0, 854.0, 2500.0, 8000.0})
       for (double rate : {5.0, 25.0, 120.0})
@@ -178,12 +181,14 @@ int main(int argc, char** argv) {
           for (int s = 0; s < seeds; ++s) {
             const survey_cases::Case c = survey_cases::sweep_case(f, rate, z, s, n);
             ++n;
+            if ((only_f > 0 && f != only_f) || (only_rate > 0 && rate != only_rate) || (only_zeta > 0 && z != only_zeta))
+              continue;
             print(c, run_record(c, tag_of(c), false), t);
           }
     summary(t);
     return 0;
   }
   std::fprintf(stderr,
-               "usage: bench_ok_coverage case FS F RATE ZETA SNR SEED [float] [wobble] [-v] | tail [SEEDS] | sweep [SEEDS]\n");
+               "usage: bench_ok_coverage case FS F RATE ZETA SNR SEED [float] [wobble] [-v] | tail [SEEDS] | sweep [SEEDS [F [RATE [ZETA]]]]\n");
   return 2;
 }

@@ -614,3 +614,104 @@ TEST(PipelineIndep, OkIntervalsCoverTheTruthOnShortLowFrequencySegments) {
 
 }  // namespace
 }  // namespace ridgewatch::test
+
+namespace ridgewatch::test {
+namespace {
+
+// ---------------------------------------------------------------------------------------------------
+// 8. Decays that overlap the next impact (detector.trigger_innovation, which `ridgewatch survey`
+//    proposes when more than 20 % of the amplitude is left at the next impact). The floor between
+//    impacts holds the previous impact's ringing, so every event after the first was low_snr; the
+//    analyzer now takes the noise from the innovation (impact_analyzer.hpp, "Noise"). The records are
+//    the survey sweep's kind (survey_record_spec) with the configurations the survey proposes for
+//    them, written out. `wobble`: the shaft speed varies +-5 % over 1 s instead of the ramp.
+indep::RigRecord overlap_record(double fs, double f, double rate, double zeta, double snr_db, double duration_s,
+                                std::uint64_t seed, bool wobble) {
+  indep::RigSpec s = survey_record_spec(fs, f, rate, zeta, snr_db, duration_s, seed);
+  if (wobble) {
+    s.rev_hz = rate;
+    s.ramp_rel = 0.0;
+    s.wobble_rel = 0.05;
+    s.wobble_period_s = 1.0;
+  }
+  return indep::make_rig_record(s);
+}
+
+PipelineConfig overlap_config(double fs, double band_lo, double band_hi, double holdoff, double f_expected,
+                              double window_s) {
+  PipelineConfig cfg;
+  cfg.sample_rate_hz = fs;
+  cfg.detector.band_lo_hz = band_lo;
+  cfg.detector.band_hi_hz = band_hi;
+  cfg.detector.holdoff_s = holdoff;
+  cfg.detector.trigger_innovation = true;
+  cfg.analyzer.f_expected_hz = f_expected;
+  cfg.analyzer.window_s = window_s;
+  cfg.analyzer.clip_level = NAN;
+  return cfg;
+}
+
+// Median |zeta / truth - 1| of the ok events (every event must be a true impact).
+double ok_median_error(const indep::RigRecord& rec, const std::vector<ImpactEvent>& events) {
+  std::vector<double> err;
+  for (const auto& e : events) {
+    const long k = match(rec.onset_s, e.t_s, 0.002);
+    if (k >= 0 && e.status == ImpactStatus::ok) err.push_back(std::abs(e.zeta / rec.zeta[static_cast<std::size_t>(k)] - 1.0));
+  }
+  if (err.empty()) return NAN;
+  std::nth_element(err.begin(), err.begin() + static_cast<std::ptrdiff_t>(err.size() / 2), err.end());
+  return err[err.size() / 2];
+}
+
+// 2.5 kHz, 25 / s, zeta 0.002 (30 % of the amplitude left at the next impact), 40 dB, 25.6 kHz, 3 s
+// (75 impacts), the survey's proposal (bench_ok_coverage sweep 3 2500 25 0.002, seed 164). Before: the
+// first event ok, the other 74 low_snr (ridge SNR 6-7 dB against the floor with the ringing, 35-50 dB
+// against the noise). Asserted: most events ok, right (median |zeta error| within the acceptance's
+// 2 %: 0.3 % measured over 6 s), and their 95 % intervals cover the truth at about the nominal rate
+// (seeded, so the count is fixed; at most 8 %, which a calibrated interval exceeds with ~15 %
+// probability at ~60 events; measured 4 of 134 over 6 s).
+TEST(PipelineIndep, OverlappingDecaysAreOkAfterTheFirstImpact) {
+  const indep::RigRecord rec = overlap_record(25600.0, 2500.0, 25.0, 0.002, 40.0, 3.0, 164, false);
+  const PipelineConfig cfg = overlap_config(25600.0, 2125.0, 2875.0, 0.0191451, 2499.99, 0.0324611);
+  const PipeRun r = run_pipeline(cfg, rec.x);
+  expect_intervals_sane(r.events);
+  const OkCoverage c = ok_coverage(rec, r.events, "2.5 kHz overlapping decays", false);
+  EXPECT_GE(c.ok, rec.onset_s.size() * 2 / 3);
+  EXPECT_LE(static_cast<double>(c.misses), 0.08 * static_cast<double>(c.ok));
+  EXPECT_LE(ok_median_error(rec, r.events), 0.02);
+}
+
+// ok stays a promise where the floor without the ringing no longer holds the lines near the mode.
+// (a) 854 Hz, 25 / s, zeta 0.002, 40 dB, 48 kHz, wobble, 2 s (seed 138): the 32 ms windows hold 6.5 DFT
+//     bins of the fit band, whose one residual term does not take up the leakage of the impact-locked
+//     550 / 1100 Hz mesh lines (zeta 2-3 % high on every event; 16 of 112 ok intervals missed over 6 s
+//     with the innovation's floor and no further check). (b) 2.5 kHz, 120 / s, zeta 0.01, 40 dB, 25.6 kHz,
+//     1 s (seed 176): 4.7 ms ML segments, the 2640 Hz mesh line within their bins (50 ok events, zeta
+//     a median 31 % low, all 50 intervals missed). Asserted: every event a true impact, and no ok interval
+//     misses (at most one for (a), a 5 % interval's share of ~20 events). With the innovation's floor on
+//     every window these records gave 38 ok with 6 misses (a) and 8 ok with 8 misses (b); now 0 ok.
+TEST(PipelineIndep, OverlapFloorKeepsTheOkPromiseBesideLines) {
+  struct Case {
+    const char* label;
+    indep::RigRecord rec;
+    PipelineConfig cfg;
+    std::size_t max_misses, min_events;
+  };
+  const indep::RigRecord a = overlap_record(48000.0, 854.0, 25.0, 0.002, 40.0, 2.0, 138, true);
+  const indep::RigRecord b = overlap_record(25600.0, 2500.0, 120.0, 0.01, 40.0, 1.0, 176, false);
+  const Case cases[] = {
+      {"854 Hz overlapping decays, mesh lines", a, overlap_config(48000.0, 722.8, 985.2, 0.0190564, 854.013, 0.0323015),
+       1, a.onset_s.size() * 9 / 10},
+      {"2.5 kHz at 120 / s, a mesh line in the band", b,
+       overlap_config(25600.0, 1889.2, 3142.7, 0.00398902, 2515.97, 0.00518024), 0, 20},
+  };
+  for (const Case& c : cases) {
+    const PipeRun r = run_pipeline(c.cfg, c.rec.x);
+    expect_intervals_sane(r.events);
+    EXPECT_LE(ok_coverage(c.rec, r.events, c.label, false).misses, c.max_misses) << c.label;
+    EXPECT_GE(r.events.size(), c.min_events) << c.label;
+  }
+}
+
+}  // namespace
+}  // namespace ridgewatch::test

@@ -15,6 +15,10 @@ namespace {
 
 constexpr double kTwoPi = 2.0 * std::numbers::pi;
 
+// DFT bins across the ML fit band (2 ml_band_rel f_expected) the window after the onset must hold for
+// the innovation's noise floor to stand in for the floor between impacts (header comment, "Noise").
+constexpr double kFloorBins = 9.0;
+
 ImpactStatus from_estimate(dsp::EstimateStatus s) {
   switch (s) {
     case dsp::EstimateStatus::ok: return ImpactStatus::ok;
@@ -397,6 +401,12 @@ ImpactEvent ImpactAnalyzer::analyze(const ImpactWindow& win) {
   // Noise: floored at 1e-12 of the peak power (float32 rounding is ~1e-14), so noise-free data give
   // a finite SNR of at most 120 dB instead of a division by zero.
   fr.noise_var = win.noise_var;
+  // Decays that overlap: the innovation's floor, without the previous ringing, when the window after
+  // the onset resolves the fit band into 9 bins (header comment, "Noise").
+  const double after_onset_s = static_cast<double>(fr.n - std::min(fr.n, fr.o)) / fs_;
+  if (win.innovation_noise_var > 0 && win.innovation_noise_var < fr.noise_var &&
+      after_onset_s * 2.0 * ml_band_rel_ * f_expected_ >= kFloorBins)
+    fr.noise_var = win.innovation_noise_var;
   if (!(fr.noise_var > 1e-12 * peak_sq)) fr.noise_var = 1e-12 * peak_sq;
   if (!(fr.noise_var > 0)) return finish(ImpactStatus::low_snr);  // all zero
 

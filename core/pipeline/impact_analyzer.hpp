@@ -90,7 +90,21 @@
 // ml_step.hpp (MlStep); 5 in core/dsp/cross_check.hpp.
 //
 // Noise: the caller gives the in-band power of the samples between impacts (pre-trigger samples);
-// it is converted to the white-noise variance the CWT rows' noise gains refer to.
+// it is converted to the white-noise variance the CWT rows' noise gains refer to. Where decays overlap
+// the next impact (the detector in innovation mode) that power holds the previous impact's ringing
+// (12-16 dB over the noise at 854 Hz, 25 / s, zeta 0.002), which made every event after the first
+// low_snr. The caller then also gives the innovation's power over the same span (the band envelope
+// minus the ringing's one-pole continuation: ImpactDetector::innovation_noise_power), and the analysis
+// uses it (the smaller of the two) when the window after the onset holds at least 9 DFT bins of the
+// ML fit band, T * 2 ml_band_rel f_expected >= 9 (StreamProcessor's rule for the shortest decay
+// window: the fit then keeps its two residual terms). The ringing itself does not bias zeta: the
+// previous decay is the same mode with the same pole, and the sum of two such decays is one decay.
+// But the floor with the ringing also holds the lines near the mode, which the innovation follows
+// almost as it follows the ringing, and on shorter windows it is what keeps them from ok: with fewer
+// bins the fit keeps one residual term, a constant, which does not take up the slope of a nearby
+// line's leakage (854 Hz, 25 / s, 32 ms: the impact-locked 550 / 1100 Hz mesh lines put zeta 2-3 %
+// high on every event), and it cannot resolve a line within its bins (2.5 kHz, 120 / s, 4.7 ms: the
+// 2640 Hz mesh line, zeta a median 31 % low with +-2-8 % intervals). README, survey, "decays that overlap".
 #pragma once
 
 #include <complex>
@@ -126,6 +140,9 @@ struct ImpactWindow {
   std::size_t onset_offset = 0;     ///< index of the onset inside `samples`
   WindowEnd end = WindowEnd::complete;
   double noise_var = NAN;           ///< white-equivalent noise variance of the samples (from the gaps)
+  /// Innovation mode (detector.trigger_innovation): the same without the previous impacts' ringing
+  /// (StreamProcessor; header comment, "Noise"); NaN otherwise.
+  double innovation_noise_var = NAN;
   bool spike = false;               ///< a detected spike lies inside the window
   std::uint64_t onset_index = 0;    ///< absolute onset index (event sample_index)
 };

@@ -41,6 +41,7 @@ ImpactDetector::ImpactDetector(const ImpactDetectorConfig& cfg, double fs, std::
     // Innovation lag k: the model's peak time + 1 ms (stage 3, innovation mode).
     innov_lag_d_ = std::max<std::size_t>(1, static_cast<std::size_t>(std::ceil((peak_samples_ + 0.001 * fs_) / static_cast<double>(dec_))));
     freeze_extra_d_ = 2 * innov_lag_d_;
+    measure_lag_correlation(bw);
   }
   allocate(history_samples);
   restart(0);
@@ -195,6 +196,43 @@ void ImpactDetector::finish() {
 }
 
 double ImpactDetector::band_power(std::uint64_t begin, std::uint64_t end) const {
+  return history_power(e_hist_, begin, end);
+}
+
+double ImpactDetector::innovation_noise_power(std::uint64_t begin, std::uint64_t end) const {
+  if (!innov_) return NAN;
+  // The predictor as innovation() uses it now (frozen around a trigger: the one before the impact
+  // that asks for its floor).
+  std::complex<double> p = innov_w_ > 0.0 ? innov_c_ / innov_w_ : std::complex<double>{};
+  const double mag = std::abs(p);
+  if (mag > 1.0) p /= mag;
+  // q = |n[m] - p n[m - k]|^2 for noise n of band power P: E q = P (1 + |p|^2 - 2 Re(conj(p) rho_k)).
+  const double gain = 1.0 + std::norm(p) - 2.0 * (std::conj(p) * innov_rho_).real();
+  return history_power(q_hist_, begin, end) / std::max(gain, 1e-3);
+}
+
+void ImpactDetector::measure_lag_correlation(double bw) {
+  // E[n[m] conj(n[m - k])] of the band output for white input: the impulse responses' lag products
+  // summed over the D positions of a block (as measure_fill_up() sums their powers), over the same span.
+  const double sum_s = std::max(0.25, 3.0 / bw);
+  const std::size_t n_out = static_cast<std::size_t>(std::ceil(sum_s * fs_d_)) + 8 + innov_lag_d_;
+  std::vector<double> x(n_out * dec_, 0.0);
+  std::vector<std::complex<double>> y;
+  std::complex<double> lag{0.0, 0.0};
+  double power = 0.0;
+  for (std::size_t p = 0; p < dec_; ++p) {
+    std::fill(x.begin(), x.end(), 0.0);
+    x[p] = 1.0;
+    run_chain(x, y);
+    for (std::size_t m = 0; m < y.size(); ++m) {
+      power += std::norm(y[m]);
+      if (m >= innov_lag_d_) lag += y[m] * std::conj(y[m - innov_lag_d_]);
+    }
+  }
+  innov_rho_ = power > 0.0 ? lag / power : std::complex<double>{};
+}
+
+double ImpactDetector::history_power(const std::vector<double>& hist, std::uint64_t begin, std::uint64_t end) const {
   // Time average over [begin, end) of e, linearly interpolated between the band samples. Interpolating
   // matters: the in-band floor between impacts often holds the residuals of two lines (a beat in e at their difference frequency, e.g.
   // 440 Hz for 660/1100 Hz lines), which a plain mean of the few band samples in a 2 ms window
@@ -219,15 +257,15 @@ double ImpactDetector::band_power(std::uint64_t begin, std::uint64_t end) const 
   auto at = [&](double u) {
     const auto k = static_cast<std::uint64_t>(u);
     const double f = u - static_cast<double>(k);
-    const double a = e_hist_[k & e_mask_];
-    return f > 0.0 ? a + f * (e_hist_[(k + 1) & e_mask_] - a) : a;
+    const double a = hist[k & e_mask_];
+    return f > 0.0 ? a + f * (hist[(k + 1) & e_mask_] - a) : a;
   };
   // Trapezoids: partial first and last intervals, whole ones between.
   const double k0 = std::ceil(u0), k1 = std::floor(u1);
   if (k0 > k1) return 0.5 * (at(u0) + at(u1));
   double area = 0.5 * (at(u0) + at(k0)) * (k0 - u0) + 0.5 * (at(k1) + at(u1)) * (u1 - k1);
   for (auto k = static_cast<std::uint64_t>(k0); k < static_cast<std::uint64_t>(k1); ++k)
-    area += 0.5 * (e_hist_[k & e_mask_] + e_hist_[(k + 1) & e_mask_]);
+    area += 0.5 * (hist[k & e_mask_] + hist[(k + 1) & e_mask_]);
   return area / (u1 - u0);
 }
 

@@ -199,6 +199,15 @@ class ImpactDetector {
   /// band samples; only band samples after the chain's fill-up are used. NaN when the range is shorter
   /// than 8 samples or its overlap with those stored band samples is.
   double band_power(std::uint64_t begin, std::uint64_t end) const;
+  /// Innovation mode: the band's noise power over [begin, end) without the ringing of earlier
+  /// impacts, from the trigger statistic q = |z[m] - p z[m - k]|^2 (stage 3): its time average (as
+  /// band_power() averages e) divided by q's white-noise gain relative to e, 1 + |p|^2 -
+  /// 2 Re(conj(p) rho_k) (rho_k the band's noise correlation at the lag, p the current predictor).
+  /// A free decay of the band's mode leaves nothing in q, so between overlapping decays this is the
+  /// noise (and what the one-pole prediction does not follow: lines, other modes) where band_power()
+  /// holds the previous impact's ringing. NaN in energy mode or where band_power() is NaN.
+  double innovation_noise_power(std::uint64_t begin, std::uint64_t end) const;
+  bool innovation_mode() const { return innov_; }
   /// Robust noise floor: LTA (bias-corrected) of the band power (with trigger_innovation: of the
   /// innovation energy, the trigger statistic, which for noise alone is the band power).
   double lta() const { return band_.lta / kCapBias; }
@@ -293,6 +302,9 @@ class ImpactDetector {
   void run_chain(const std::vector<double>& x, std::vector<std::complex<double>>& y) const;
   void shift_buffer();
   double white_band_power(double mad) const;
+  /// Time average over [begin, end) of a band-sample history (e_hist_ or q_hist_): band_power()'s rule.
+  double history_power(const std::vector<double>& hist, std::uint64_t begin, std::uint64_t end) const;
+  void measure_lag_correlation(double bw_hz);  // innov_rho_ from the chain's impulse responses
   void note_scale(std::size_t k);  // keeps the spike stage's scale after block k of a run
   void start_run_scale();          // fixes the winsorisation limit of the run's blocks
   /// Winsorisation limit 3 mean |r| of the scale update: as of the start of the run once the scale is
@@ -364,6 +376,7 @@ class ImpactDetector {
   std::size_t freeze_extra_d_ = 0;  // LTA (and predictor) freeze after a trigger beyond hold-off and confirmation
   std::complex<double> innov_c_{0.0, 0.0};
   double innov_w_ = 0.0;
+  std::complex<double> innov_rho_{0.0, 0.0};  // white noise's band correlation at lag k, E[n[m] conj(n[m - k])] / E|n|^2
   std::uint64_t e_mask_ = 0;
   bool lta_raised_ = false;  // the start-up raise to the white-noise band power has been done
   std::uint64_t holdoff_end_ = 0, lta_frozen_until_ = 0;
