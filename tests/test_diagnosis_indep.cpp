@@ -51,6 +51,20 @@ rd::DiagnoseResult one_round(const std::vector<double>& y, const rm::RigParamete
   return rd::diagnose(fitter, {}, o);
 }
 
+/// The independent generator's damping-step record (ζ 0.024 -> 0.032 at 0.32 s of 0.64 s, seed 1)
+/// and its first 16 impact windows.
+struct StepRecord {
+  std::vector<double> y;
+  rd::Segmentation seg;
+};
+StepRecord damping_step_record() {
+  ig::Settings st = ig::short_test_record(ig::Hidden::kDampingStep, 0.008, 1);
+  st.size2 = 0.32;
+  StepRecord s{ig::generate(st).y, {}};
+  s.seg = rd::subset_windows(rd::segment_recording(s.y, kRate, paper_rig()), 16);
+  return s;
+}
+
 }  // namespace
 
 // The generator itself, against hand numbers: one impact per revolution (25 Hz), and the free
@@ -284,13 +298,9 @@ TEST(CompareIndependent, RecordOfAnotherStructureIsFlagged) {
 // damping_drift:step_time_s=0.32!` fits the step at that time. Without the time only the drift rate is
 // fitted, a straight line through a step.
 TEST(CompareIndependent, DampingStepAtAGivenTimeIsFitted) {
-  ig::Settings st = ig::short_test_record(ig::Hidden::kDampingStep, 0.008, 1);
-  st.size2 = 0.32;
-  const auto r = ig::generate(st);
-  const auto rig = paper_rig();
-  const auto seg = rd::subset_windows(rd::segment_recording(r.y, kRate, rig), 16);
-  ASSERT_GE(seg.windows.size(), 14u);
-  rd::ModelFitter fitter(r.y, seg, rig);
+  const auto r = damping_step_record();
+  ASSERT_GE(r.seg.windows.size(), 14u);
+  rd::ModelFitter fitter(r.y, r.seg, paper_rig());
   const rd::FitResult rate_only = fitter.fit({"damping_drift"});
   for (const auto& e : rate_only.estimates) EXPECT_NE(e.name, "damping_drift.step");
   // The time is set, never fitted; it must lie between fitted impacts.
@@ -359,11 +369,9 @@ TEST(DiagnoseIndependent, DampingDriftHasNoStep) {
 // ln n in BIC (k ln n with one more k) and not in χ²; a model without damping_drift fitted with the
 // chosen time in the settings is the plain model (the time acts on nothing, costs nothing).
 TEST(CompareIndependent, ChosenStepTimeCountsInTheBicOfItsModelsOnly) {
-  ig::Settings st = ig::short_test_record(ig::Hidden::kDampingStep, 0.008, 1);
-  st.size2 = 0.32;
-  const auto r = ig::generate(st);
+  const auto r = damping_step_record();
   const auto rig = paper_rig();
-  const auto seg = rd::subset_windows(rd::segment_recording(r.y, kRate, rig), 16);
+  const auto& seg = r.seg;
   rd::ModelFitter given(r.y, seg, rig), chosen(r.y, seg, rig);
   given.set_parameter_settings({{"damping_drift.step_time_s", {0.336, true, false}}});
   chosen.set_parameter_settings({{"damping_drift.step_time_s", {0.336, true, true}}});
