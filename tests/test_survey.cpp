@@ -178,6 +178,23 @@ TEST(SurveyAcceptance, ShortDecayAtEightKilohertzGetsAProposal) {
 #endif
 
 #ifndef RIDGEWATCH_SANITIZED
+TEST(SurveyAcceptance, DecaysFillingTheIntervalPassTheContrastAgainstTheFloorBeforeEachImpact) {
+  // 854 Hz, zeta 0.01, 25/s, 10 dB: 13 % of the amplitude is left at the next impact, so the band
+  // envelope's median is the ringing itself, 8 dB under the peaks; the survey found the mode (16 of
+  // 24 free responses), the train's period and 96 % regular intervals, but said "no repeated
+  // impacts" on the 10 dB contrast. Against the envelope just before each impact the peaks stand
+  // 13 dB. The sweep's record (bench_survey sweep 3 854 25 0.01, 44.1 kHz float, seed 141).
+  survey_cases::Case c = survey_cases::sweep_case(854, 25, 0.01, 2, 41);
+  ASSERT_EQ(c.seed, 141u);
+  ASSERT_EQ(c.snr_db, 10.0);
+  SCOPED_TRACE(survey_cases::describe(c));
+  survey_cases::Outcome o;
+  ASSERT_NO_FATAL_FAILURE(expect_proposed_and_found(c, "fill", o));
+  EXPECT_NE(o.survey_text.find("over the envelope just before them"), std::string::npos) << o.survey_text;
+}
+#endif
+
+#ifndef RIDGEWATCH_SANITIZED
 TEST(SurveyAcceptance, LowModeAtTwentyFivePerSecondGetsAProposalWithALowerEta0) {
   // 300 Hz at 25/s +-5 %: 38 ms between the closest impacts, the analyzer's minimum window at eta0 7
   // (10 kernel widths, 37 ms) did not fit 0.9 of that minus the pretrigger (32.5 ms): no proposal,
