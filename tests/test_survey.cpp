@@ -195,6 +195,20 @@ TEST(SurveyAcceptance, DecaysFillingTheIntervalPassTheContrastAgainstTheFloorBef
 #endif
 
 #ifndef RIDGEWATCH_SANITIZED
+TEST(SurveyAcceptance, NoEventAtTheFirstSampleWithALoweredTriggerRatio) {
+  // 854 Hz, zeta 0.01, 25/s, 40 dB: the survey lowers trigger_ratio to 3 (the decays fill the
+  // interval), and the detector's start transient on the lines and hum the record starts in then
+  // triggered, its onset clamped to the first sample: an event at 0 s, 30 ms before the first
+  // impact, the record's one false event. An onset at the segment's first sample is no onset now
+  // (detector_onset.cpp). The sweep's record (bench_survey sweep 3 854 25 0.01, 25.6 kHz int16).
+  survey_cases::Case c = survey_cases::sweep_case(854, 25, 0.01, 1, 40);
+  ASSERT_EQ(c.seed, 140u);
+  ASSERT_EQ(c.snr_db, 40.0);
+  expect_accepted(c);
+}
+#endif
+
+#ifndef RIDGEWATCH_SANITIZED
 TEST(SurveyAcceptance, LowModeAtTwentyFivePerSecondGetsAProposalWithALowerEta0) {
   // 300 Hz at 25/s +-5 %: 38 ms between the closest impacts, the analyzer's minimum window at eta0 7
   // (10 kernel widths, 37 ms) did not fit 0.9 of that minus the pretrigger (32.5 ms): no proposal,
