@@ -128,6 +128,29 @@ int hammer_mode(const std::string& hit) {
   return 0;
 }
 
+// `case`: the analyze events of the record that match no impact within the sweep's tolerance and the
+// impacts no event matches, each with its nearest counterpart (what a false or missed onset is).
+void print_unmatched(const survey_cases::Case& c, const std::string& dir) {
+  const auto truth = survey_cases::make_record(c).onset_s;
+  std::ostringstream out, err;
+  ridgewatch::cli::run_analyze({dir + "/survey-case.wav", "--config", dir + "/survey-case.yaml"}, out, err);
+  std::vector<double> events;
+  for (const auto& e : survey_cases::json_lines(out.str())) events.push_back(e["t_s"].get<double>());
+  const double tol = std::min(0.002, 0.25 / c.rate_hz);
+  auto nearest = [](const std::vector<double>& v, double t) {
+    double best = NAN;
+    for (double u : v)
+      if (!(std::fabs(u - t) >= std::fabs(best - t))) best = u;
+    return best;
+  };
+  for (double t : events)
+    if (!(std::fabs(nearest(truth, t) - t) <= tol))
+      std::printf("unmatched event at %.4f s: nearest impact %.4f s (%+.2f ms)\n", t, nearest(truth, t), 1e3 * (t - nearest(truth, t)));
+  for (double t : truth)
+    if (!(std::fabs(nearest(events, t) - t) <= tol))
+      std::printf("missed impact at %.4f s: nearest event %.4f s (%+.2f ms)\n", t, nearest(events, t), 1e3 * (nearest(events, t) - t));
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -169,6 +192,7 @@ int main(int argc, char** argv) {
     std::cout << out.str();
     print(c, o);
     std::cout << o.analyze_err;
+    if (o.proposal) print_unmatched(c, dir);
     return 0;
   }
   std::cerr << "usage: bench_survey time | sweep [SEEDS [F [RATE [ZETA]]]] | controls | case FS F RATE ZETA SNR SEED [float] [wobble] [none] [teeth=N] | hammer HIT.wav\n";

@@ -178,6 +178,39 @@ TEST(SurveyAcceptance, ShortDecayAtEightKilohertzGetsAProposal) {
 #endif
 
 #ifndef RIDGEWATCH_SANITIZED
+// The sweep's record s of the cell 854 Hz 25/s zeta 0.01 (bench_survey sweep 3 854 25 0.01; record
+// 39 + s of the sweep), checked against the seed and SNR the comments below name.
+survey_cases::Case sweep_record_854_25_001(int s, std::uint64_t seed, double snr_db) {
+  const survey_cases::Case c = survey_cases::sweep_case(854, 25, 0.01, s, 39 + s);
+  EXPECT_EQ(c.seed, seed);
+  EXPECT_EQ(c.snr_db, snr_db);
+  return c;
+}
+
+TEST(SurveyAcceptance, DecaysFillingTheIntervalPassTheContrastAgainstTheFloorBeforeEachImpact) {
+  // 854 Hz, zeta 0.01, 25/s, 10 dB: 13 % of the amplitude is left at the next impact, so the band
+  // envelope's median is the ringing itself, 8 dB under the peaks; the survey found the mode (16 of
+  // 24 free responses), the train's period and 96 % regular intervals, but said "no repeated
+  // impacts" on the 10 dB contrast. Against the envelope just before each impact the peaks stand
+  // 13 dB. The sweep's record (bench_survey sweep 3 854 25 0.01, 44.1 kHz float, seed 141).
+  const survey_cases::Case c = sweep_record_854_25_001(2, 141, 10.0);
+  SCOPED_TRACE(survey_cases::describe(c));
+  survey_cases::Outcome o;
+  ASSERT_NO_FATAL_FAILURE(expect_proposed_and_found(c, "fill", o));
+  EXPECT_NE(o.survey_text.find("over the envelope just before them"), std::string::npos) << o.survey_text;
+}
+
+TEST(SurveyAcceptance, NoEventAtTheFirstSampleWithALoweredTriggerRatio) {
+  // 854 Hz, zeta 0.01, 25/s, 40 dB: the survey lowers trigger_ratio to 3 (the decays fill the
+  // interval), and the detector's start transient on the lines and hum the record starts in then
+  // triggered, its onset clamped to the first sample: an event at 0 s, 30 ms before the first
+  // impact, the record's one false event. An onset at the segment's first sample is no onset now
+  // (detector_onset.cpp). The sweep's record (bench_survey sweep 3 854 25 0.01, 25.6 kHz int16).
+  expect_accepted(sweep_record_854_25_001(1, 140, 40.0));
+}
+#endif
+
+#ifndef RIDGEWATCH_SANITIZED
 TEST(SurveyAcceptance, LowModeAtTwentyFivePerSecondGetsAProposalWithALowerEta0) {
   // 300 Hz at 25/s +-5 %: 38 ms between the closest impacts, the analyzer's minimum window at eta0 7
   // (10 kernel widths, 37 ms) did not fit 0.9 of that minus the pretrigger (32.5 ms): no proposal,

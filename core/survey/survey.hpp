@@ -42,7 +42,10 @@
 //     (periodic bursts), contrast >= 10 (bursts stand 10 dB above the floor), >= 4 impacts with
 //     >= 75 % of the intervals regular, and the ringing mode in >= half of the analysed segments (a
 //     decaying free response after the bursts, which mesh lines, hum and noise are not). A record
-//     that fails any is reported with every figure and the reasons, and gets no proposal.
+//     that fails any is reported with every figure and the reasons, and gets no proposal. When the
+//     kurtogram band's train fails but the mode is found, the train tests are repeated in the mode's
+//     band f (1 +- 0.15), where the contrast may also be read against the envelope's median 0.4 .. 0.2
+//     periods before each impact (decays that fill the interval make the record's median the ringing).
 //  6. Proposal (current pipeline keys, core/pipeline/stream_processor.hpp):
 //       detector band f (1 +- 0.15), each edge pulled in to halfway to the nearest stationary line
 //         (peaks of the power spectrum of the quiet ends of the intervals, >= 10 dB over the local
