@@ -715,3 +715,78 @@ TEST(PipelineIndep, OverlapFloorKeepsTheOkPromiseBesideLines) {
 
 }  // namespace
 }  // namespace ridgewatch::test
+
+namespace ridgewatch::test {
+namespace {
+
+// ---------------------------------------------------------------------------------------------------
+// 9. A well-damped short decay beside impact-locked lines far outside the fit band: 854 Hz, zeta 0.05
+//    (time constant 3.7 ms), 5 impacts per second (ramp 4.75 -> 5.25 / s), mesh lines 110 / 220 Hz
+//    (22 teeth, 25 % / 15 % of the impact, locked to the impacts), hum 50 / 100 Hz, 40 dB, 44.1 kHz,
+//    float, the configuration `ridgewatch survey` proposes for it (bench_survey sweep 3 854 5 0.05,
+//    its first record: window_s 15.7 ms, so the ML segment holds 7 DFT bins of 66 Hz). The lines leak
+//    into the fit band through the segment's ends with a slope across it; the one-term fit put every
+//    event's zeta 1.2-3.4 % low (median -2.1 %) and 10 of 39 ok intervals missed the truth. Asserted:
+//    enough ok events, their median signed error within +-1 % (the spread of the 40 dB estimates is
+//    +-0.5 %, so the old -2.1 % fails by far) and at most 4 misses (39 x 5 % = 2 expected for
+//    calibrated intervals; the record is seeded, so the count is fixed: now 1, median -0.06 %). The
+//    analytic check: the same decays without lines, hum or noise (pure exponentially decaying sines of
+//    known zeta on the same 15 ms windows) come out within 0.3 % of it.
+// Signed zeta errors (zeta / truth - 1, sorted) of the ok events and how many of their 95 % intervals
+// miss the truth. Events that match no impact are left to the detector's tests: the detector takes one
+// wobble of the mesh lines for an impact on this record (`bench_survey sweep 3 854 5 0.05`: 39 of 40
+// found, 1 false), which says nothing about the analyzer.
+struct OkErrors {
+  std::vector<double> err;
+  std::size_t misses = 0;
+};
+OkErrors ok_errors(const indep::RigRecord& rec, const std::vector<ImpactEvent>& events) {
+  OkErrors o;
+  for (const auto& e : events) {
+    const long k = match(rec.onset_s, e.t_s, 0.002);
+    if (k < 0 || e.status != ImpactStatus::ok) continue;
+    const double zt = rec.zeta[static_cast<std::size_t>(k)];
+    o.err.push_back(e.zeta / zt - 1.0);
+    if (!(e.zeta_ci95_lo <= zt && zt <= e.zeta_ci95_hi)) ++o.misses;
+  }
+  std::sort(o.err.begin(), o.err.end());
+  return o;
+}
+
+PipelineConfig short_decay_config() {
+  PipelineConfig cfg;
+  cfg.sample_rate_hz = 44100.0;
+  cfg.detector.band_lo_hz = 729.7;
+  cfg.detector.band_hi_hz = 987.2;
+  cfg.detector.holdoff_s = 0.0958718;
+  cfg.analyzer.f_expected_hz = 858.462;
+  cfg.analyzer.window_s = 0.0157428;
+  cfg.analyzer.clip_level = NAN;
+  return cfg;
+}
+
+TEST(PipelineIndep, ShortWellDampedDecaysAreNotBiasedByLinesOutsideTheFitBand) {
+  indep::RigRecord rec = indep::make_rig_record(survey_record_spec(44100.0, 854.0, 5.0, 0.05, 40.0, 8.0, 133));
+  for (double& v : rec.x) v = static_cast<float>(v);  // the float32 file's samples
+  const PipeRun r = run_pipeline(short_decay_config(), rec.x);
+  expect_intervals_sane(r.events);
+  const OkErrors o = ok_errors(rec, r.events);
+  ASSERT_GE(o.err.size(), 30u);
+  const double median = o.err[o.err.size() / 2];
+  std::cout << o.err.size() << " ok, " << o.misses << " ok intervals miss the truth, median signed zeta error "
+            << 100 * median << " %\n";
+  EXPECT_LE(std::abs(median), 0.01);
+  EXPECT_LE(o.misses, 4u);
+
+  indep::RigSpec clean = survey_record_spec(44100.0, 854.0, 5.0, 0.05, 40.0, 8.0, 133);
+  clean.mesh_amp.clear();
+  clean.hum_amp.clear();
+  clean.noise_sd = 0.0;
+  const indep::RigRecord pure = indep::make_rig_record(clean);
+  const OkErrors o_pure = ok_errors(pure, run_pipeline(short_decay_config(), pure.x).events);
+  ASSERT_GE(o_pure.err.size(), 30u);
+  EXPECT_LE(std::abs(o_pure.err[o_pure.err.size() / 2]), 0.003);
+}
+
+}  // namespace
+}  // namespace ridgewatch::test

@@ -54,8 +54,10 @@
 //  4. ml (default): SpectralModeFitter with one mode in f_d (1 +- ml_band_rel, default 12 %) on the segment from
 //     onset + 0.5 ms (the 0.15 ms force pulse and the onset's uncertainty are over) to the end of the
 //     usable window (half rate: the copy's samples, fitters made with (len / 2, fs / 2)), started from
-//     the ridge-LS estimate. The in-band fit ignores the mesh lines at
-//     550/1100 Hz of the paper rig (outside 860 Hz +- 12 %) and hum. Segment lengths are quantised to
+//     the ridge-LS estimate (Eq. 15-16 in the DFT domain, ml_fit.hpp). The in-band fit ignores the
+//     mesh lines at 550/1100 Hz of the paper rig (outside 860 Hz +- 12 %) and hum, except for their
+//     leakage through the segment's ends, a slope across the band that two residual terms take up
+//     (MlStep: on short segments one term left zeta 2 % low beside such lines). Segment lengths are quantised to
 //     eighths of the full window so the FFT plans can be made in the constructor.
 //     A steady line near the mode (a mesh harmonic sweeping through the band during a speed ramp, a
 //     hum harmonic) that the one-mode model does not explain widens the fit's interval. When the
@@ -97,13 +99,14 @@
 // minus the ringing's one-pole continuation: ImpactDetector::innovation_noise_power), and the analysis
 // uses it (the smaller of the two) when the window after the onset holds at least 9 DFT bins of the
 // ML fit band, T * 2 ml_band_rel f_expected >= 9 (StreamProcessor's rule for the shortest decay
-// window: the fit then keeps its two residual terms). The ringing itself does not bias zeta: the
+// window). The ringing itself does not bias zeta: the
 // previous decay is the same mode with the same pole, and the sum of two such decays is one decay.
 // But the floor with the ringing also holds the lines near the mode, which the innovation follows
-// almost as it follows the ringing, and on shorter windows it is what keeps them from ok: with fewer
-// bins the fit keeps one residual term, a constant, which does not take up the slope of a nearby
-// line's leakage (854 Hz, 25 / s, 32 ms: the impact-locked 550 / 1100 Hz mesh lines put zeta 2-3 %
-// high on every event), and it cannot resolve a line within its bins (2.5 kHz, 120 / s, 4.7 ms: the
+// almost as it follows the ringing, and on shorter windows it is what keeps them from ok: there the
+// fit kept one residual term, a constant, which did not take up the slope of a nearby line's leakage
+// (854 Hz, 25 / s, 32 ms: the impact-locked 550 / 1100 Hz mesh lines put zeta 2-3 % high on every
+// event; the fit keeps two terms on every segment now, MlStep, and the rule was not re-measured since),
+// and it cannot resolve a line within its bins (2.5 kHz, 120 / s, 4.7 ms: the
 // 2640 Hz mesh line, zeta a median 31 % low with +-2-8 % intervals). README, survey, "decays that overlap".
 #pragma once
 

@@ -35,6 +35,17 @@ constexpr double kSteadyDecay = 0.1;
 // exists for had +-11 % (hi / lo ~1.25), clean decays at 40 dB have +-1-2 % and skip it.
 constexpr double kUnresolvedMinCiRatio = 1.1;
 
+// Residual terms of the one-mode fit (MlStep::fit): a constant and a slope across the fit band, also
+// on short segments. Steady lines and decaying components outside the band leak into it through the
+// segment's ends like 1 / (f_line - f), which across a few DFT bins is a slope, not a constant. With
+// one term on segments of fewer than 9 bins (the rule before), the impact-locked mesh lines of the
+// independent records (tests/support/indep_signals.hpp; 110/220 Hz beside an 854 Hz mode at 5/s)
+// biased every event of a zeta 0.05 decay alike (15 ms windows, 7 bins: median -2.1 %, 10 of 39 ok
+// intervals missing the truth; `bench_ok_coverage sweep 3 854 5 0.05`); with two: median -0.1 %,
+// 1 miss. The price: two of the 12-14 values of the shortest segments (6 bins: 4 residual degrees of
+// freedom; the intervals widen by Student's t, report_fit in core/dsp/ml_fit.cpp).
+constexpr int kResidualTerms = 2;
+
 // Residual degrees of freedom of a fit: 2 values per DFT bin minus 4 per mode and 2 per residual term.
 double residual_dof(const dsp::MlFitResult& r, int residual_terms) {
   return 2.0 * static_cast<double>(r.bins) - 4.0 * static_cast<double>(r.modes.size()) - 2.0 * residual_terms;
@@ -151,14 +162,14 @@ MlStep::Outcome MlStep::fit(std::span<const double> seg, std::size_t a0, double 
   const dsp::ModeGuess guess{f_d, zeta0};
   dsp::MlFitOptions mo;
   // Short segments have few bins in the band (662 samples at 25.6 kHz: 38.7 Hz bins, 5 bins in
-  // +-12 % of 860 Hz, i.e. 10 values for 4 mode + 4 residual parameters). Widening the band would let
-  // stationary lines in (a 640 Hz line then biased ok events by 20 %); instead such segments keep one
-  // residual term (a constant), and at least +-3 bins.
+  // +-12 % of 860 Hz). Widening the band would let stationary lines in (a 640 Hz line then biased ok
+  // events by 20 %); such segments get at least +-3 bins. Every fit keeps two residual terms
+  // (kResidualTerms).
   const double bin_hz = fs_a_ / static_cast<double>(fitter_len_[pick]);
   const double half = std::max(ml_band_rel_ * f_d, 3.0 * bin_hz);
   mo.f_lo_hz = std::max(f_d - half, 1.0);
   mo.f_hi_hz = std::min(f_d + half, 0.4999 * fs_a_);
-  mo.residual_terms = 2.0 * half / bin_hz >= 9.0 ? 2 : 1;
+  mo.residual_terms = kResidualTerms;
   fitters_[pick]->fit(seg, std::span<const dsp::ModeGuess>(&guess, 1), mo, one_);
   const dsp::MlFitResult* used = &one_;
   Outcome out;
