@@ -16,6 +16,7 @@
 #include "core/dsp/kernels/clipped_sum.hpp"
 #include "core/dsp/kernels/fir_steps.hpp"
 #include "core/dsp/kernels/iq_lowpass.hpp"
+#include "core/dsp/kernels/isa.hpp"
 #include "core/dsp/kernels/phasor_rotate.hpp"
 #include "core/dsp/kernels/ring_sum.hpp"
 #include "core/dsp/kernels/spike_residual.hpp"
@@ -34,25 +35,39 @@ std::vector<float> random_floats(std::size_t n, std::mt19937& rng, float scale =
   return v;
 }
 
+// Runs body with the kernels' baseline (SSE2) forms, then with the CPU's choice (the AVX2 forms where
+// the CPU has AVX2, isa.hpp), and restores the CPU's choice.
+template <typename Body>
+void for_each_isa(Body body) {
+  for (const bool baseline : {true, false}) {
+    SCOPED_TRACE(baseline ? "baseline forms" : "forms chosen for this CPU");
+    limit_kernels_to_baseline(baseline);
+    body();
+  }
+  limit_kernels_to_baseline(false);
+}
+
 TEST(KernelsDetector, FirStepsMatchesReference) {
-  std::mt19937 rng(1);
-  // n_taps 4..32 covers the register-held taps (<= 24) and the plain loop; steps 1..16 and counts
-  // across the groups of four windows and their remainder.
-  for (std::size_t n_taps = 4; n_taps <= 32; n_taps += 4) {
-    for (std::size_t step : {1u, 3u, 10u, 16u}) {
-      for (std::size_t count : {0u, 1u, 3u, 4u, 5u, 16u}) {
-        const auto x = random_floats(step * count + n_taps + 4, rng);
-        const auto g_re = random_floats(n_taps, rng), g_im = random_floats(n_taps, rng);
-        std::vector<float> re(count + 4, 7.0f), im(count + 4, 7.0f), re_g(count + 4, 7.0f), im_g(count + 4, 7.0f);
-        fir_steps(x.data(), step, count, g_re.data(), g_im.data(), n_taps, re.data(), im.data());
-        fir_steps_generic(x.data(), step, count, g_re.data(), g_im.data(), n_taps, re_g.data(), im_g.data());
-        for (std::size_t j = 0; j < count + 4; ++j) {
-          ASSERT_EQ(bits(re[j]), bits(re_g[j])) << "taps " << n_taps << " step " << step << " count " << count << " j " << j;
-          ASSERT_EQ(bits(im[j]), bits(im_g[j])) << "taps " << n_taps << " step " << step << " count " << count << " j " << j;
+  for_each_isa([] {
+    std::mt19937 rng(1);
+    // n_taps 4..32 covers the register-held taps (<= 24) and the plain loop; steps 1..16 and counts
+    // across the groups of four windows and their remainder.
+    for (std::size_t n_taps = 4; n_taps <= 32; n_taps += 4) {
+      for (std::size_t step : {1u, 3u, 10u, 16u}) {
+        for (std::size_t count : {0u, 1u, 3u, 4u, 5u, 16u}) {
+          const auto x = random_floats(step * count + n_taps + 4, rng);
+          const auto g_re = random_floats(n_taps, rng), g_im = random_floats(n_taps, rng);
+          std::vector<float> re(count + 4, 7.0f), im(count + 4, 7.0f), re_g(count + 4, 7.0f), im_g(count + 4, 7.0f);
+          fir_steps(x.data(), step, count, g_re.data(), g_im.data(), n_taps, re.data(), im.data());
+          fir_steps_generic(x.data(), step, count, g_re.data(), g_im.data(), n_taps, re_g.data(), im_g.data());
+          for (std::size_t j = 0; j < count + 4; ++j) {
+            ASSERT_EQ(bits(re[j]), bits(re_g[j])) << "taps " << n_taps << " step " << step << " count " << count << " j " << j;
+            ASSERT_EQ(bits(im[j]), bits(im_g[j])) << "taps " << n_taps << " step " << step << " count " << count << " j " << j;
+          }
         }
       }
     }
-  }
+  });
 }
 
 TEST(KernelsDetector, ClippedSumMatchesReference) {
@@ -74,34 +89,36 @@ TEST(KernelsDetector, ClippedSumMatchesReference) {
 }
 
 TEST(KernelsDetector, SpikeResidualBlocksMatchReference) {
-  std::mt19937 rng(3);
-  // len % 4 == 0 with several blocks (the detector's 20-sample blocks at 51.2 kHz), and single blocks
-  // of any length (10 at 25.6 kHz, 5 and 7 for other rates).
-  struct Case { std::size_t len, count; };
-  for (const Case c : {Case{20, 4}, Case{20, 1}, Case{8, 8}, Case{4, 3}, Case{10, 1}, Case{5, 1}, Case{7, 1},
-                       Case{3, 1}, Case{1, 1}, Case{12, 2}}) {
-    for (int trial = 0; trial < 10; ++trial) {
-      const std::size_t n = c.len * c.count + 16;
-      auto x = random_floats(n + 4, rng);
-      if (trial == 3) x[2 + c.len / 2 + 2] = 50.0f;  // a spike: one large residual
-      if (trial == 4) x[4] = std::numeric_limits<float>::quiet_NaN();
-      const auto r0 = random_floats(n + 4, rng);  // r[0], r[1] must be kept, the rest overwritten
-      std::vector<float> r = r0, r_g = r0;
-      std::vector<float> sums(c.count), tops(c.count), sums_g(c.count), tops_g(c.count);
-      const float clip = 1.5f;
-      // x + 2: the kernels read two samples before their first.
-      spike_residual_blocks(x.data() + 2, r.data(), c.len, c.count, clip, sums.data(), tops.data());
-      spike_residual_blocks_generic(x.data() + 2, r_g.data(), c.len, c.count, clip, sums_g.data(), tops_g.data());
-      for (std::size_t i = 0; i < r.size(); ++i)
-        ASSERT_EQ(bits(r[i]), bits(r_g[i])) << "len " << c.len << " count " << c.count << " i " << i;
-      EXPECT_EQ(bits(r[0]), bits(r0[0]));
-      EXPECT_EQ(bits(r[1]), bits(r0[1]));
-      for (std::size_t k = 0; k < c.count; ++k) {
-        ASSERT_EQ(bits(sums[k]), bits(sums_g[k])) << "len " << c.len << " count " << c.count << " block " << k;
-        ASSERT_EQ(bits(tops[k]), bits(tops_g[k])) << "len " << c.len << " count " << c.count << " block " << k;
+  for_each_isa([] {
+    std::mt19937 rng(3);
+    // len % 4 == 0 with several blocks (the detector's 20-sample blocks at 51.2 kHz), and single blocks
+    // of any length (10 at 25.6 kHz, 5 and 7 for other rates).
+    struct Case { std::size_t len, count; };
+    for (const Case c : {Case{20, 4}, Case{20, 1}, Case{8, 8}, Case{4, 3}, Case{10, 1}, Case{5, 1}, Case{7, 1},
+                         Case{3, 1}, Case{1, 1}, Case{12, 2}}) {
+      for (int trial = 0; trial < 10; ++trial) {
+        const std::size_t n = c.len * c.count + 16;
+        auto x = random_floats(n + 4, rng);
+        if (trial == 3) x[2 + c.len / 2 + 2] = 50.0f;  // a spike: one large residual
+        if (trial == 4) x[4] = std::numeric_limits<float>::quiet_NaN();
+        const auto r0 = random_floats(n + 4, rng);  // r[0], r[1] must be kept, the rest overwritten
+        std::vector<float> r = r0, r_g = r0;
+        std::vector<float> sums(c.count), tops(c.count), sums_g(c.count), tops_g(c.count);
+        const float clip = 1.5f;
+        // x + 2: the kernels read two samples before their first.
+        spike_residual_blocks(x.data() + 2, r.data(), c.len, c.count, clip, sums.data(), tops.data());
+        spike_residual_blocks_generic(x.data() + 2, r_g.data(), c.len, c.count, clip, sums_g.data(), tops_g.data());
+        for (std::size_t i = 0; i < r.size(); ++i)
+          ASSERT_EQ(bits(r[i]), bits(r_g[i])) << "len " << c.len << " count " << c.count << " i " << i;
+        EXPECT_EQ(bits(r[0]), bits(r0[0]));
+        EXPECT_EQ(bits(r[1]), bits(r0[1]));
+        for (std::size_t k = 0; k < c.count; ++k) {
+          ASSERT_EQ(bits(sums[k]), bits(sums_g[k])) << "len " << c.len << " count " << c.count << " block " << k;
+          ASSERT_EQ(bits(tops[k]), bits(tops_g[k])) << "len " << c.len << " count " << c.count << " block " << k;
+        }
       }
     }
-  }
+  });
 }
 
 TEST(KernelsDetector, SpikeResidualReferenceIsTheInterpolationResidual) {

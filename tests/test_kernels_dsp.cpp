@@ -7,6 +7,8 @@
 
 #include <algorithm>
 #include <bit>
+#include <complex>
+#include <numbers>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
@@ -14,7 +16,9 @@
 #include <random>
 #include <vector>
 
+#include "core/dsp/kernels/goertzel.hpp"
 #include "core/dsp/kernels/half_rate_121.hpp"
+#include "core/dsp/kernels/isa.hpp"
 #include "core/dsp/kernels/pivot_counts.hpp"
 
 using namespace ridgewatch::dsp::kernels;
@@ -193,3 +197,52 @@ TEST(KernelPivotCounts, NeighboursFoundAtEveryPosition) {
 }
 
 }  // namespace
+
+// The Goertzel recursions: the fast form (baseline and, where the CPU has AVX2, the AVX2 form) against
+// the reference bit for bit, for 1 and 2 bins, with and without a tail row, over row counts around the
+// two-step loop's remainder and the ML fit's segments (1766 samples: 220 full rows and a tail); then
+// the reference against the recursion's definition: with c = 2 cos t, s[M-1] - e^{-i t} s[M-2] =
+// sum_m x[P m + j] e^{i t (M-1-m)} for each phase j (Goertzel), within 1e-9 of sum |x| (the
+// recursion's round-off grows like M^2 eps / sin t: ~1e-11 at M = 221, sin t >= 0.3 here).
+TEST(KernelGoertzel, FastEqualsGenericBitForBit) {
+  constexpr std::size_t P = kGoertzelPhases;
+  std::mt19937_64 rng(23);
+  const double ts[2] = {0.8, 2.1};
+  const double coef[2] = {2.0 * std::cos(ts[0]), 2.0 * std::cos(ts[1])};
+  for (std::size_t m_full : {0u, 1u, 2u, 3u, 4u, 7u, 220u}) {
+    for (const bool with_tail : {false, true}) {
+      if (m_full == 0 && !with_tail) continue;
+      const auto x = varied_samples<double>(P * m_full + P, rng);
+      const double* tail = with_tail ? x.data() + P * m_full : nullptr;
+      for (std::size_t bins : {1u, 2u}) {
+        std::vector<double> ref(2 * P * bins, -1.0);
+        goertzel_recursions_generic(x.data(), m_full, tail, coef, bins, ref.data());
+        for (const bool baseline : {true, false}) {
+          limit_kernels_to_baseline(baseline);
+          std::vector<double> fast(2 * P * bins, -1.0);
+          goertzel_recursions(x.data(), m_full, tail, coef, bins, fast.data());
+          for (std::size_t i = 0; i < fast.size(); ++i)
+            ASSERT_EQ(bits(fast[i]), bits(ref[i])) << "m_full=" << m_full << " tail=" << with_tail
+                                                   << " bins=" << bins << " baseline=" << baseline << " i=" << i;
+        }
+        limit_kernels_to_baseline(false);
+        const std::size_t rows = m_full + (with_tail ? 1 : 0);
+        for (std::size_t b = 0; b < bins; ++b) {
+          for (std::size_t j = 0; j < P; ++j) {
+            std::complex<double> direct(0.0, 0.0);
+            double scale = 0.0;
+            for (std::size_t m = 0; m < rows; ++m) {
+              const double v = x[P * m + j];
+              direct += v * std::polar(1.0, ts[b] * static_cast<double>(rows - 1 - m));
+              scale += std::abs(v);
+            }
+            const std::complex<double> read =
+                ref[2 * P * b + j] - std::polar(1.0, -ts[b]) * ref[2 * P * b + P + j];
+            EXPECT_LE(std::abs(read - direct), 1e-9 * scale + 1e-300)
+                << "m_full=" << m_full << " tail=" << with_tail << " bin " << b << " phase " << j;
+          }
+        }
+      }
+    }
+  }
+}

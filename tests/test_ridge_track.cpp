@@ -2,11 +2,14 @@
 // the ridge starts, its frequency, and when it is lost or ends (the free response stopped).
 #include <gtest/gtest.h>
 
+#include <bit>
 #include <cmath>
 #include <complex>
 #include <cstdint>
+#include <random>
 #include <vector>
 
+#include "core/dsp/kernels/isa.hpp"
 #include "core/pipeline/ridge_track.hpp"
 
 namespace {
@@ -106,3 +109,42 @@ TEST(RidgeTrack, AnAcceleratingDecayThatDoesNotRecoverEndsTheRidge) {
 }
 
 }  // namespace
+
+// find_ridge's two forms (the baseline and, where the CPU has AVX2, the AVX2 one: dsp/kernels/isa.hpp)
+// give the same start, powers and medians bit for bit: random complex grids of the analyzer's size
+// (14 rows) with a decaying ridge, noise, exact ties and rows of one repeated value (the median's
+// shortcuts and its partition fallback).
+TEST(RidgeTrack, FindRidgeFormsAgreeBitForBit) {
+  constexpr std::size_t rows = 14;
+  std::mt19937_64 rng(31);
+  std::normal_distribution<float> noise(0.0f, 1.0f);
+  for (std::size_t cols : {16u, 63u, 79u, 80u}) {
+    for (int trial = 0; trial < 20; ++trial) {
+      std::vector<std::complex<float>> w(rows * cols);
+      for (auto& v : w) v = {noise(rng), noise(rng)};
+      const std::size_t r0 = 1 + static_cast<std::size_t>(trial) % (rows - 2);
+      for (std::size_t c = 5; c < cols; ++c)
+        w[r0 * cols + c] += std::complex<float>(static_cast<float>(30.0 * std::exp(-0.05 * static_cast<double>(c))), 0.0f);
+      if (trial % 4 == 1)
+        for (std::size_t c = 0; c < cols; ++c) w[(rows - 1) * cols + c] = {0.5f, 0.0f};  // one value repeated
+      if (trial % 4 == 2) w[cols / 2] = w[cols / 4];  // a tie at the pivot's rank (row 0)
+      std::vector<double> p[2], med[2], scratch(2 * cols);
+      RidgeStart st[2];
+      for (int form = 0; form < 2; ++form) {
+        p[form].assign(rows * cols, -1.0);
+        med[form].assign(rows, -1.0);
+        ridgewatch::dsp::kernels::limit_kernels_to_baseline(form == 0);
+        st[form] = find_ridge(w, rows, cols, 3, cols - 2, p[form], med[form], scratch);
+      }
+      ridgewatch::dsp::kernels::limit_kernels_to_baseline(false);
+      ASSERT_EQ(st[0].row, st[1].row) << "cols " << cols << " trial " << trial;
+      ASSERT_EQ(st[0].col, st[1].col) << "cols " << cols << " trial " << trial;
+      ASSERT_EQ(std::bit_cast<std::uint64_t>(st[0].power), std::bit_cast<std::uint64_t>(st[1].power));
+      for (std::size_t i = 0; i < rows * cols; ++i)
+        ASSERT_EQ(std::bit_cast<std::uint64_t>(p[0][i]), std::bit_cast<std::uint64_t>(p[1][i])) << "i " << i;
+      for (std::size_t r = 0; r < rows; ++r)
+        ASSERT_EQ(std::bit_cast<std::uint64_t>(med[0][r]), std::bit_cast<std::uint64_t>(med[1][r])) << "row " << r;
+      EXPECT_EQ(st[1].row, r0) << "the ridge row";  // the test grid's ridge dominates
+    }
+  }
+}

@@ -14,6 +14,7 @@
 #include <unsupported/Eigen/NonLinearOptimization>
 
 #include "core/dsp/fftw_planner.hpp"
+#include "core/dsp/kernels/goertzel.hpp"
 #include "core/dsp/kernels/mode_bin.hpp"
 #include "core/dsp/kernels/simd.hpp"
 
@@ -196,58 +197,8 @@ Eigen::MatrixXd real_jacobian(const Eigen::MatrixXcd& jc) {
 // step is hidden; 3 flops per sample and bin against ~10 instructions for a direct sum with table
 // twiddles). Round-off grows like M^2 eps / sin(t) (M = 221, t ~ 0.8 at the pipeline's 1766-sample
 // segments: ~1e-11 of sum |x|; test_damping checks a fit on these bins against one on FFT bins).
-// tw holds e^{-2 pi i m / N}, interleaved.
-constexpr std::size_t kPhases = 8;
-
-// kPhases recursions per bin in f64x2 lanes (core/dsp/kernels/simd.hpp): 4 independent chains per bin
-// and step. (Not 4-wide AVX2 vectors: the analyzer runs the recursions in short bursts, each would pay
-// the wake-up of the upper vector lanes; docs/performance.md.)
-constexpr std::size_t kPairs = kPhases / 2;
-
-// The recursions of B bins (coefficients coef[0..B)) in one pass over the samples: x holds m_full rows
-// of kPhases samples; `tail` (nullptr when n is a multiple of kPhases) one more, zero-padded: the
-// segment is read in place, only its last partial row is copied. Writes s[M-1] then s[M-2] (kPhases
-// values each) per bin to out[16 b ..]. Steps go in pairs with the roles of the two state arrays
-// swapped (the new value overwrites s[m-2]), so that no register copies s[m-1] to s[m-2]: the loop is
-// bound by the issue of its vector operations, not by the latency of one step. B = 2: 8 chains with the
-// sample loads shared (B = 3 spills its state). Each bin's arithmetic is that of a one-bin recursion,
-// exactly.
-template <std::size_t B>
-void goertzel_recursions(const double* x, std::size_t m_full, const double* tail, const double* coef, double* out) {
-  f64x2 c[B], sa[B][kPairs], sb[B][kPairs];
-  for (std::size_t b = 0; b < B; ++b) {
-    c[b] = f64x2{coef[b], coef[b]};
-    for (std::size_t q = 0; q < kPairs; ++q) sa[b][q] = sb[b][q] = f64x2{0.0, 0.0};
-  }
-  // s2 <- x - s2 + c s1: s2 then holds the newest value.
-  auto step = [&](const double* xm, const f64x2 (*s1)[kPairs], f64x2 (*s2)[kPairs]) {
-    for (std::size_t q = 0; q < kPairs; ++q) {
-      const f64x2 xv = simd::load(xm + 2 * q);
-      for (std::size_t b = 0; b < B; ++b) s2[b][q] = (xv - s2[b][q]) + c[b] * s1[b][q];
-    }
-  };
-  std::size_t m = 0;
-  for (; m + 1 < m_full; m += 2) {
-    step(x + kPhases * m, sa, sb);
-    step(x + kPhases * (m + 1), sb, sa);
-  }
-  bool newest_in_b = false;  // after an odd number of steps the newest values are in sb
-  if (m < m_full) {
-    step(x + kPhases * m, sa, sb);
-    newest_in_b = true;
-  }
-  if (tail) {
-    if (newest_in_b)
-      step(tail, sb, sa);
-    else
-      step(tail, sa, sb);
-    newest_in_b = !newest_in_b;
-  }
-  for (std::size_t b = 0; b < B; ++b) {
-    std::memcpy(out + 2 * kPhases * b, newest_in_b ? sb[b] : sa[b], sizeof sa[b]);
-    std::memcpy(out + 2 * kPhases * b + kPhases, newest_in_b ? sa[b] : sb[b], sizeof sa[b]);
-  }
-}
+// tw holds e^{-2 pi i m / N}, interleaved. The recursions: kernels::goertzel_recursions.
+constexpr std::size_t kPhases = kernels::kGoertzelPhases;
 
 void goertzel_bins(const double* x, std::size_t n, const double* tw, std::size_t k_lo, std::size_t count,
                    fftw_complex* out) {
@@ -280,13 +231,13 @@ void goertzel_bins(const double* x, std::size_t n, const double* tw, std::size_t
   std::size_t k = k_lo;
   for (; k + 1 < k_lo + count; k += 2) {
     const double c2[2] = {coef(k), coef(k + 1)};
-    goertzel_recursions<2>(x, m_full, tail_row, c2, s);
+    kernels::goertzel_recursions(x, m_full, tail_row, c2, 2, s);
     combine(k, s, s + kPhases);
     combine(k + 1, s + 2 * kPhases, s + 3 * kPhases);
   }
   if (k < k_lo + count) {
     const double c1 = coef(k);
-    goertzel_recursions<1>(x, m_full, tail_row, &c1, s);
+    kernels::goertzel_recursions(x, m_full, tail_row, &c1, 1, s);
     combine(k, s, s + kPhases);
   }
 }

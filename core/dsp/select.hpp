@@ -67,7 +67,7 @@ inline double select_kth(double* v, double* tmp, std::size_t n, std::size_t k) {
 /// largest value below and the smallest above it. k in [below, at_or_below): the pivot; k = below - 1:
 /// the largest below; k = at_or_below: the smallest above (whatever their multiplicities). Otherwise
 /// the side that holds the k-th is copied out (one pass) and select_kth finishes on it.
-inline double select_kth_nonnegative(const double* v, double* tmp, std::size_t n, std::size_t k) {
+[[gnu::always_inline]] inline double select_kth_nonnegative(const double* v, double* tmp, std::size_t n, std::size_t k) {
   const double a = v[n / 4], b = v[n / 2], c = v[3 * n / 4];
   const double pivot = std::max(std::min(a, b), std::min(std::max(a, b), c));
   const kernels::PivotCounts counts = kernels::pivot_counts(v, n, pivot);

@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <cmath>
 
+#include "core/dsp/kernels/isa.hpp"
 #include "core/dsp/kernels/subtract_and_max.hpp"
 #include "core/dsp/select.hpp"
 
@@ -42,9 +43,12 @@ double ridge_frequency(std::span<const double> rows_hz, std::size_t r0, const do
 
 }  // namespace
 
-RidgeStart find_ridge(std::span<const std::complex<float>> grid, std::size_t rows, std::size_t cols,
-                      std::size_t onset_col, std::size_t last_col, std::span<double> power,
-                      std::span<double> row_median, std::span<double> scratch) {
+namespace {
+
+[[gnu::always_inline]] inline RidgeStart find_ridge_body(std::span<const std::complex<float>> grid, std::size_t rows,
+                                                         std::size_t cols, std::size_t onset_col, std::size_t last_col,
+                                                         std::span<double> power, std::span<double> row_median,
+                                                         std::span<double> scratch) {
   // One pass per row: |W|^2 into the power grid, the median (dsp::select_kth_nonnegative: the value
   // nth_element gives, mostly without a partition pass), then the subtraction together with the row's
   // maximum after the onset. The ridge starts at the largest value after the onset, the first one in
@@ -70,6 +74,31 @@ RidgeStart find_ridge(std::span<const std::complex<float>> grid, std::size_t row
   s.col = onset_col;
   while (s.col + 1 < last_col && power[s.row * cols + s.col] != s.power) ++s.col;
   return s;
+}
+
+RidgeStart find_ridge_baseline(std::span<const std::complex<float>> grid, std::size_t rows, std::size_t cols,
+                               std::size_t onset_col, std::size_t last_col, std::span<double> power,
+                               std::span<double> row_median, std::span<double> scratch) {
+  return find_ridge_body(grid, rows, cols, onset_col, last_col, power, row_median, scratch);
+}
+
+// The same code with AVX2 encodings (dsp/kernels/isa.hpp: no FMA, the same results): the powers'
+// widening and the median's counting pass (kernels::pivot_counts) take four values per instruction.
+RIDGEWATCH_TARGET_AVX2 RidgeStart find_ridge_avx2(std::span<const std::complex<float>> grid, std::size_t rows,
+                                                  std::size_t cols, std::size_t onset_col, std::size_t last_col,
+                                                  std::span<double> power, std::span<double> row_median,
+                                                  std::span<double> scratch) {
+  return find_ridge_body(grid, rows, cols, onset_col, last_col, power, row_median, scratch);
+}
+
+}  // namespace
+
+RidgeStart find_ridge(std::span<const std::complex<float>> grid, std::size_t rows, std::size_t cols,
+                      std::size_t onset_col, std::size_t last_col, std::span<double> power,
+                      std::span<double> row_median, std::span<double> scratch) {
+  if (dsp::kernels::use_avx2())
+    return find_ridge_avx2(grid, rows, cols, onset_col, last_col, power, row_median, scratch);
+  return find_ridge_baseline(grid, rows, cols, onset_col, last_col, power, row_median, scratch);
 }
 
 RidgeTrack follow_ridge(const RidgeGrid& g, const RidgeStart& start, const RidgeFollowInputs& in) {

@@ -1,5 +1,6 @@
 #include "core/dsp/kernels/fir_steps.hpp"
 
+#include "core/dsp/kernels/isa.hpp"
 #include "core/dsp/kernels/simd.hpp"
 
 namespace ridgewatch::dsp::kernels {
@@ -13,16 +14,16 @@ using simd::store;
 // {lanes_sum(a[0]), ..., lanes_sum(a[3])} with the same additions in the same order: pairs of lanes of
 // two vectors summed in one addition, then the pairs of pairs. (__builtin_shufflevector: GCC >= 12 and
 // Clang, which the libFuzzer build uses.)
-inline f32x4 lanes_sum4(const f32x4 (&a)[4]) {
+[[gnu::always_inline]] inline f32x4 lanes_sum4(const f32x4 (&a)[4]) {
   const f32x4 p = __builtin_shufflevector(a[0], a[1], 0, 2, 4, 6) + __builtin_shufflevector(a[0], a[1], 1, 3, 5, 7);
   const f32x4 q = __builtin_shufflevector(a[2], a[3], 0, 2, 4, 6) + __builtin_shufflevector(a[2], a[3], 1, 3, 5, 7);
   return __builtin_shufflevector(p, q, 0, 2, 4, 6) + __builtin_shufflevector(p, q, 1, 3, 5, 7);
 }
 
-// NV tap vectors held in registers.
+// NV tap vectors held in registers. Inlined into both forms of fir_steps (isa.hpp).
 template <std::size_t NV>
-void fir_steps_nv(const float* x, std::size_t step, std::size_t count, const float* g_re, const float* g_im, float* re,
-                  float* im) {
+[[gnu::always_inline]] inline void fir_steps_nv(const float* x, std::size_t step, std::size_t count, const float* g_re,
+                                                const float* g_im, float* re, float* im) {
   f32x4 gr[NV], gi[NV];
   for (std::size_t v = 0; v < NV; ++v) {
     gr[v] = load(g_re + 4 * v);
@@ -55,10 +56,9 @@ void fir_steps_nv(const float* x, std::size_t step, std::size_t count, const flo
   }
 }
 
-}  // namespace
-
-void fir_steps(const float* x, std::size_t step, std::size_t count, const float* g_re, const float* g_im,
-               std::size_t n_taps, float* re, float* im) {
+[[gnu::always_inline]] inline void fir_steps_vector(const float* x, std::size_t step, std::size_t count,
+                                                    const float* g_re, const float* g_im, std::size_t n_taps, float* re,
+                                                    float* im) {
   switch (n_taps / 4) {
     case 1: return fir_steps_nv<1>(x, step, count, g_re, g_im, re, im);
     case 2: return fir_steps_nv<2>(x, step, count, g_re, g_im, re, im);
@@ -78,6 +78,24 @@ void fir_steps(const float* x, std::size_t step, std::size_t count, const float*
         im[j] = simd::lanes_sum(a_im);
       }
   }
+}
+
+void fir_steps_baseline(const float* x, std::size_t step, std::size_t count, const float* g_re, const float* g_im,
+                        std::size_t n_taps, float* re, float* im) {
+  fir_steps_vector(x, step, count, g_re, g_im, n_taps, re, im);
+}
+
+RIDGEWATCH_TARGET_AVX2 void fir_steps_avx2(const float* x, std::size_t step, std::size_t count, const float* g_re,
+                                           const float* g_im, std::size_t n_taps, float* re, float* im) {
+  fir_steps_vector(x, step, count, g_re, g_im, n_taps, re, im);
+}
+
+}  // namespace
+
+void fir_steps(const float* x, std::size_t step, std::size_t count, const float* g_re, const float* g_im,
+               std::size_t n_taps, float* re, float* im) {
+  if (use_avx2()) return fir_steps_avx2(x, step, count, g_re, g_im, n_taps, re, im);
+  fir_steps_baseline(x, step, count, g_re, g_im, n_taps, re, im);
 }
 
 void fir_steps_generic(const float* x, std::size_t step, std::size_t count, const float* g_re, const float* g_im,

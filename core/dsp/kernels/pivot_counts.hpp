@@ -45,7 +45,7 @@ inline void pivot_counts_one(PivotCounts& c, double x, double pivot) {
   if (x > pivot) c.above_min = x < c.above_min ? x : c.above_min;
 }
 
-inline PivotCounts pivot_counts(const double* v, std::size_t n, double pivot) {
+[[gnu::always_inline]] inline PivotCounts pivot_counts(const double* v, std::size_t n, double pivot) {
   using simd::f64x2;
   using simd::i64x2;
   const double inf = std::numeric_limits<double>::infinity();

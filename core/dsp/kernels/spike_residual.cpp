@@ -5,16 +5,16 @@
 #include <cstdint>
 
 #include "core/dsp/kernels/clipped_sum.hpp"
+#include "core/dsp/kernels/isa.hpp"
 #include "core/dsp/kernels/simd.hpp"
 
 namespace ridgewatch::dsp::kernels {
 
 namespace {
 constexpr float kSixthF = 1.0f / 6.0f, kTwoThirdsF = 2.0f / 3.0f;
-}  // namespace
-
-void spike_residual_blocks(const float* x, float* r, std::size_t len, std::size_t count, float clip, float* sums,
-                           float* tops) {
+// The vector form, inlined into its baseline and AVX2 instances (isa.hpp).
+[[gnu::always_inline]] inline void residual_blocks(const float* x, float* r, std::size_t len, std::size_t count,
+                                                   float clip, float* sums, float* tops) {
   using simd::f32x4;
   using simd::i32x4;
   using simd::load;
@@ -58,6 +58,24 @@ void spike_residual_blocks(const float* x, float* r, std::size_t len, std::size_
     }
     sums[k] = (sums[k] + sum[1]) + (sum[2] + sum[3]);
   }
+}
+
+void residual_blocks_baseline(const float* x, float* r, std::size_t len, std::size_t count, float clip, float* sums,
+                              float* tops) {
+  residual_blocks(x, r, len, count, clip, sums, tops);
+}
+
+RIDGEWATCH_TARGET_AVX2 void residual_blocks_avx2(const float* x, float* r, std::size_t len, std::size_t count,
+                                                 float clip, float* sums, float* tops) {
+  residual_blocks(x, r, len, count, clip, sums, tops);
+}
+
+}  // namespace
+
+void spike_residual_blocks(const float* x, float* r, std::size_t len, std::size_t count, float clip, float* sums,
+                           float* tops) {
+  if (use_avx2()) return residual_blocks_avx2(x, r, len, count, clip, sums, tops);
+  residual_blocks_baseline(x, r, len, count, clip, sums, tops);
 }
 
 void spike_residual_blocks_generic(const float* x, float* r, std::size_t len, std::size_t count, float clip,
