@@ -105,9 +105,11 @@
 // almost as it follows the ringing, and on shorter windows it is what keeps them from ok: there the
 // fit kept one residual term, a constant, which did not take up the slope of a nearby line's leakage
 // (854 Hz, 25 / s, 32 ms: the impact-locked 550 / 1100 Hz mesh lines put zeta 2-3 % high on every
-// event; the fit keeps two terms on every segment now, MlStep, and the rule was not re-measured since),
-// and it cannot resolve a line within its bins (2.5 kHz, 120 / s, 4.7 ms: the
-// 2640 Hz mesh line, zeta a median 31 % low with +-2-8 % intervals). README, survey, "decays that overlap".
+// event), and it cannot resolve a line within its bins (2.5 kHz, 120 / s, 4.7 ms: the
+// 2640 Hz mesh line, zeta a median 31 % low with +-2-8 % intervals). The fit keeps two terms on every
+// segment now (MlStep); re-measured, below 9 bins the innovation's floor still lets wrong numbers
+// through as ok, also with no line near (300 Hz, 2.3 bins: intervals too narrow, 10 % miss).
+// README, survey, "decays that overlap".
 #pragma once
 
 #include <complex>
