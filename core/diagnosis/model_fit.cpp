@@ -571,7 +571,8 @@ bool run_lm(FitProblem& prob, FitParams& p, int max_fev) {
   // each reduce χ² by less than that fraction. There the remaining progress is a creep: a logistic
   // parameter nears its bound only exponentially in u, and beyond the clamp of a ln amplitude its
   // phases are nearly flat directions, so MINPACK's test (1e-6) took 30-80 more iterations for a few
-  // 1e-4 of χ² in all, on a candidate whose value at the bound is what diagnose reads.
+  // 1e-4 of χ² in all; the parameter is reported at its bound either way. A run still gaining
+  // 1e-4 or more per iteration goes on, as before.
   constexpr double kBoundCreepGain = 1e-4;
   auto status = lm.minimizeInit(x);
   if (status == Eigen::LevenbergMarquardtSpace::ImproperInputParameters) {
