@@ -10,7 +10,8 @@
 // Residual rows: (y - model) / σ over each window's unmasked samples, σ = the noise floor between
 // impacts. Optimiser: Eigen's Levenberg–Marquardt (unsupported/Eigen/NonLinearOptimization) with a
 // forward-difference Jacobian that exploits the structure (a nuisance moves only its own window and
-// the next one's carried tail). Uncertainties: s² (JᵀJ)⁻¹ at the optimum, s² = RSS / (n - p).
+// the next one's carried tail), and one more stop for a fit with a global parameter at a bound of
+// its range (run_lm in the .cpp). Uncertainties: s² (JᵀJ)⁻¹ at the optimum, s² = RSS / (n - p).
 //
 // Folds: windows alternate training (even index) / held-out (odd). Training fit: globals and the
 // training nuisances on training rows (held-out nuisances stay at their initial values; they reach the
