@@ -18,8 +18,9 @@
 //                                        (paper rig, catalogue only) -> the printed `custom_effects`
 //                                        block pasted into a copy of the rig file -> `compare --with`
 //                                        the proposal: verdict, ambiguous, unexplained, terms, excesses
-//   bench_diagnose coverage [coulomb|drift] [seeds]   how often the fit's 95 % intervals cover the
-//                                        truth on the independent generator (default 20 seeds)
+//   bench_diagnose coverage [none|coulomb|coulomb-own[-rest]|drift] [seeds] [force_n]   how often the fit's
+//                                        95 % intervals cover the truth (default 20 seeds; force_n: the
+//                                        friction of the coulomb cases, default 30 N)
 //   bench_diagnose wav CASE SEED DURATION OUT.wav   one record of the independent generator (as paste)
 //   bench_diagnose where [dead_zone|none] SEED   the true model fitted (started at the truth, each pulse
 //                                        shape) on a 0.64 s record of the independent generator: held-out
@@ -99,14 +100,14 @@ rm::RigParameters rig_for(const Case& c) {
 }
 
 std::vector<double> record(const rm::RigParameters& rig, std::vector<rm::EffectSpec> effects, double noise,
-                           double duration, std::uint64_t seed, double rate) {
+                           double duration, std::uint64_t seed, double rate, double lead_s = 0.1) {
   effects.push_back({"noise", {{"std_rel", noise}}});
   rm::SimulationSettings s;
   s.sample_rate_hz = rate;
-  s.duration_s = 0.1 + duration;
+  s.duration_s = lead_s + duration;
   s.seed = seed;
   const auto r = rm::simulate(rig, effects, s);
-  return {r.output.begin() + static_cast<std::ptrdiff_t>(0.1 * rate), r.output.end()};
+  return {r.output.begin() + static_cast<std::ptrdiff_t>(lead_s * rate), r.output.end()};
 }
 
 // Distinct seeds at the two noise levels (20 different records for the controls).
@@ -550,11 +551,12 @@ int paste_sweep(int seeds, const std::string& only, double duration) {
 /// Interval coverage: how often the fit's 95 % interval (u ± 1.96 sd_u, sd from s² (JᵀJ)⁻¹) covers the
 /// truth, over `seeds` records of the independent generator with one hidden effect, fitted with the
 /// matching model (16 impacts at 25.6 kHz, 1 % noise). `which`: "none" (the linear model; 0.64 s),
-/// "coulomb-own" (30 N of friction from ridgewatch's own simulator, for comparison), "coulomb" (catalogue coulomb_friction,
-/// 30 N; 0.64 s) or "drift" (user-defined stiffness_drift, c0 +0.4 %/s: kd = 0.004 c0; 2 s). The truth
+/// "coulomb-own" (`force_n` of friction from ridgewatch's own simulator, for comparison; "coulomb-own-rest": the
+/// same without the 0.1 s lead-in, the mesh at rest at x = 0 before the first impact), "coulomb" (catalogue
+/// coulomb_friction, `force_n`; 0.64 s) or "drift" (user-defined stiffness_drift, c0 +0.4 %/s: kd = 0.004 c0; 2 s). The truth
 /// of c0 and ζ is the generator's (8.04e8 N/m, 0.024). Nominal rate 0.95: with N seeds a rate below
 /// 0.95 - 2 sqrt(0.95 · 0.05 / N) (0.85 for N = 20) is too low to be chance.
-int coverage(const std::string& which, int seeds) {
+int coverage(const std::string& which, int seeds, double force_n) {
   namespace ig = ridgewatch::testsupport::indep;
   ig::Settings st;  // 25.6 kHz, 1 % noise as custom_indep's records
   st.sample_rate_hz = 25600.0;
@@ -568,21 +570,21 @@ int coverage(const std::string& which, int seeds) {
     effect = "stiffness_drift";
     key = "stiffness_drift.kd";
     truth = 0.004 * 8.04e8;
-  } else if (which == "coulomb-own") {
+  } else if (which == "coulomb-own" || which == "coulomb-own-rest") {
     // The same friction simulated by ridgewatch's own simulator (exact stick/slip, half-sine pulse):
     // separates an estimator problem from a difference between the two generators' physics.
     effect = "coulomb_friction";
     key = "coulomb_friction.force_n";
-    truth = 30.0;
+    truth = force_n;
   } else if (which == "none") {
     st.duration_s = 0.64;  // the linear model alone: c0 and ζ
   } else {
     st.hidden = ig::Hidden::kCoulomb;
-    st.size = 30.0;
+    st.size = force_n;
     st.duration_s = 0.64;
     effect = "coulomb_friction";
     key = "coulomb_friction.force_n";
-    truth = 30.0;
+    truth = force_n;
   }
   // c0 at the record's start: the generator drops a 0.1 s lead-in, over which a drift has already acted.
   const double c0_start = 8.04e8 * (1.0 + (which == "drift" ? 0.004 * 0.1 : 0.0));
@@ -597,8 +599,12 @@ int coverage(const std::string& which, int seeds) {
     st.seed = static_cast<std::uint64_t>(seed) * 7727u + 3u;
     rm::RigParameters rig;
     rig.crack_angle_rad = 1.0;
-    const std::vector<double> y = which == "coulomb-own"
-                                      ? record(rig, {{"coulomb_friction", {{"force_n", truth}}}}, 0.01, 0.64, st.seed, st.sample_rate_hz)
+    // coulomb-own-rest: without the 0.1 s lead-in, so that the mesh is at rest at x = 0 before the first
+    // impact, as the fit's first window assumes (after a lead-in it is stuck anywhere in the band).
+    const double lead_s = which == "coulomb-own-rest" ? 0.0 : 0.1;
+    const std::vector<double> y = which.rfind("coulomb-own", 0) == 0
+                                      ? record(rig, {{"coulomb_friction", {{"force_n", truth}}}}, 0.01, 0.64, st.seed,
+                                               st.sample_rate_hz, lead_s)
                                       : ig::generate(st).y;
     const auto seg = rd::subset_windows(rd::segment_recording(y, st.sample_rate_hz, rig), 16);
     const rd::ModelFitter fitter(y, seg, rig);
@@ -730,7 +736,8 @@ int main(int argc, char** argv) {
     return indep_sweep(argc > 2 ? std::atoi(argv[2]) : 3, argc > 3 ? argv[3] : "", argc > 4 ? std::atof(argv[4]) : 2.0,
                        argc > 5 ? std::atof(argv[5]) : 1.0, argc > 6 ? std::atof(argv[6]) : 51200.0);
   if (mode == "discover-time") return discover_timing();
-  if (mode == "coverage") return coverage(argc > 2 ? argv[2] : "coulomb", argc > 3 ? std::atoi(argv[3]) : 20);
+  if (mode == "coverage")
+    return coverage(argc > 2 ? argv[2] : "coulomb", argc > 3 ? std::atoi(argv[3]) : 20, argc > 4 ? std::atof(argv[4]) : 30.0);
   if (mode == "wav" && argc > 5) return write_indep_wav(argv[2], std::atoi(argv[3]), std::atof(argv[4]), argv[5]);
   if (mode == "where" && argc > 3) return where_left(argv[2], std::atoi(argv[3]));
   if (mode == "paste")

@@ -330,7 +330,7 @@ WindowSimulator::Run::Run(const WindowSimulator& sim, std::uint64_t first, std::
       // Shaft speed f_z / z1; the time since the impact (user-defined effects' t) before this
       // window's onset counts from the previous impact one revolution (z1 / f_z) earlier.
       integ_(*sim.model_, {&pulse_, 1}, imp.mesh_hz / sim.model_->teeth(),
-             imp.mesh_hz > 0.0 ? imp.onset_s - sim.model_->teeth() / imp.mesh_hz : imp.onset_s, {true}) {
+             imp.mesh_hz > 0.0 ? imp.onset_s - sim.model_->teeth() / imp.mesh_hz : imp.onset_s, {.locate_release = true}) {
   if (n_ > 1)
     integ_.use_grid(t_begin_, h_, mesh_angle(t_begin_), omega_, 2 * static_cast<std::size_t>(sim.substeps_) * (n_ - 1) + 1);
 }

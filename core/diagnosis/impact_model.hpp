@@ -5,8 +5,8 @@
 // (core/model/mesh_dynamics.hpp: RK4, steps split at the pulse edges, event location on switching
 // effects with the stick test, the catalogue's and the rig file's effects as plug-ins); this file adds
 // the window conventions below. Numerical settings of the fit: the RK4 step (ω h <= 0.25 at the highest
-// modelled frequency), mesh terms from their phasors on the half-step grid, and short steps while dry
-// friction holds the mesh inside the pulse.
+// modelled frequency), mesh terms from their phasors on the half-step grid, and the release of a mesh
+// held by dry friction located within the step (MeshIntegrator::Options::locate_release).
 //
 // Window conventions (what makes the fit identifiable; README "Model vs measurement"):
 //  * the impact is a half-sine force pulse of the rig's duration starting at `onset_s` with peak

@@ -12,6 +12,49 @@ constexpr double kTwoPi = 2.0 * std::numbers::pi;
 constexpr double kHannPeak = 4.0 / std::numbers::pi;
 using cd = std::complex<double>;
 int sign_of(double g) { return g >= 0.0 ? 1 : -1; }
+
+// Event location on the grid of step fractions k 2^-30 (<= 5e-15 s at 200 kHz): the smallest grid
+// fraction in (lo, hi] that is past the event, with lo not past it and hi past it.
+constexpr double kEventGrid = 0x1p-30;
+
+/// Regula falsi (Illinois) on a function g of the fraction, smooth on each side of the event, whose
+/// value says whether a fraction is past the event (`past(g)`): trial points snapped to the grid,
+/// each narrowing [lo, hi] as a bisection step would; ~6 trials instead of bisection's 30.
+template <class G, class Past>
+void narrow_by_regula_falsi(const G& g_at, const Past& past, double g_lo, double g_hi, double& lo, double& hi) {
+  int side = 0;
+  for (int trial = 0; hi - lo > kEventGrid && trial < 12; ++trial) {
+    const double f = lo + (hi - lo) * g_lo / (g_lo - g_hi);
+    if (!std::isfinite(f)) break;
+    const double m = std::clamp(std::round(f / kEventGrid) * kEventGrid, lo + kEventGrid, hi - kEventGrid);
+    const double g = g_at(m);
+    if (!std::isfinite(g)) break;
+    if (past(g)) {
+      hi = m;
+      g_hi = g;
+      if (side == 1) g_lo *= 0.5;  // Illinois: halve the stale end's value
+      side = 1;
+    } else {
+      lo = m;
+      g_lo = g;
+      if (side == -1) g_hi *= 0.5;
+      side = -1;
+    }
+  }
+}
+
+/// Bisection on the grid: the smallest grid fraction in (lo, hi] at which `past_at` holds.
+template <class PastAt>
+double bisect_on_grid(const PastAt& past_at, double lo, double hi) {
+  while (hi - lo > kEventGrid) {
+    const double mid = lo + std::floor((hi - lo) / (2.0 * kEventGrid)) * kEventGrid;
+    if (past_at(mid))
+      hi = mid;
+    else
+      lo = mid;
+  }
+  return hi;
+}
 }  // namespace
 
 const char* to_string(PulseShape shape) { return shape == PulseShape::kHann ? "hann" : "half_sine"; }
@@ -339,9 +382,6 @@ double MeshIntegrator::step_length(double t_s, double t_end) const {
   double step = t_end - t_s;
   const double boundary = next_pulse_boundary(t_s);
   if (boundary < t_end) step = boundary - t_s;
-  if (options_.short_steps_while_stuck && stuck_ && cursor_ < pulses_.size() && pulses_[cursor_].t_s <= t_s &&
-      t_s < pulses_[cursor_].t_s + model_.pulse_s_)
-    step = std::min(step, model_.pulse_s_ / 64.0);
   return step;
 }
 
@@ -357,13 +397,11 @@ std::size_t MeshIntegrator::single_switching_effect() const {
 }
 
 double MeshIntegrator::event_fraction(double t_s, double step, const State& s, const State& end) const {
-  // The step fraction just past the regime change: the smallest multiple of 2^-30 at which the step
-  // ends in the new regime (<= 5e-15 s at 200 kHz). Bisection finds it in 30 trial steps. With one
-  // switching effect, its switching function g (smooth in the fraction within a regime) gives
-  // regula falsi (Illinois) trial points snapped to that grid, which close the bracket in ~6 trials;
-  // every trial still tests the regime exactly as bisection does, so both give the same fraction
-  // whenever the regime changes once within the step (the only case bisection is defined for).
-  constexpr double kGrid = 0x1p-30;
+  // The step fraction just past the regime change: the smallest grid fraction at which the step ends
+  // in the new regime. Bisection finds it in 30 trial steps. With one switching effect, its switching
+  // function g (smooth in the fraction within a regime) gives regula falsi trial points; every trial
+  // still tests the regime exactly as bisection does, so both give the same fraction whenever the
+  // regime changes once within the step (the only case bisection is defined for).
   double lo = 0.0, hi = 1.0;
   auto violated_at = [&](double f) { return regime_violated(t_s + f * step, rk4(t_s, s, f * step)); };
   const std::size_t i = single_switching_effect();
@@ -373,39 +411,31 @@ double MeshIntegrator::event_fraction(double t_s, double step, const State& s, c
       const double tf = t_s + f * step;
       return eff.switching_function(mesh_state(tf, f == 0.0 ? s : f == 1.0 ? end : rk4(t_s, s, f * step)));
     };
-    double g_lo = g_at(0.0), g_hi = g_at(1.0);
-    int side = 0;
+    const double g_lo = g_at(0.0), g_hi = g_at(1.0);
     // Bracketing values of opposite regimes, else bisection from the start.
-    bool ok = std::isfinite(g_lo) && std::isfinite(g_hi) && sign_of(g_lo) == regimes_[i] &&
-              sign_of(g_hi) != regimes_[i];
-    for (int trial = 0; ok && hi - lo > kGrid && trial < 12; ++trial) {
-      const double f = lo + (hi - lo) * g_lo / (g_lo - g_hi);
-      if (!std::isfinite(f)) break;
-      const double m = std::clamp(std::round(f / kGrid) * kGrid, lo + kGrid, hi - kGrid);
-      const double g = g_at(m);
-      if (!std::isfinite(g)) break;
-      if (sign_of(g) != regimes_[i]) {
-        hi = m;
-        g_hi = g;
-        if (side == 1) g_lo *= 0.5;  // Illinois: halve the stale end's value
-        side = 1;
-      } else {
-        lo = m;
-        g_lo = g;
-        if (side == -1) g_hi *= 0.5;
-        side = -1;
-      }
-    }
+    if (std::isfinite(g_lo) && std::isfinite(g_hi) && sign_of(g_lo) == regimes_[i] && sign_of(g_hi) != regimes_[i])
+      narrow_by_regula_falsi(g_at, [&](double g) { return sign_of(g) != regimes_[i]; }, g_lo, g_hi, lo, hi);
   }
   // Bisection on the grid (the whole search when there are several switching effects).
-  while (hi - lo > kGrid) {
-    const double mid = lo + std::floor((hi - lo) / (2.0 * kGrid)) * kGrid;
-    if (violated_at(mid))
-      hi = mid;
-    else
-      lo = mid;
-  }
-  return hi;
+  return bisect_on_grid(violated_at, lo, hi);
+}
+
+double MeshIntegrator::release_fraction(double t_s, double step, const State& s, double direction) const {
+  // While stuck, x and q̇ stay as they are over the step (only θ and the auxiliary mode move), and the
+  // force the friction must hold, F(t) = the mesh coordinate's force without the sticking effects,
+  // changes smoothly with t (the pulse, the mesh angle). Release where direction · F(t) first exceeds
+  // the static limit: g(f) = direction · F - limit, not past the release at f = 0 (check_release held
+  // the mesh there), past it at f = 1.
+  auto g_at = [&](double f) {
+    return direction * mesh_coordinate_force_n(t_s + f * step, f == 0.0 ? s : rk4(t_s, s, f * step), false) -
+           model_.stick_limit_n_;
+  };
+  auto past = [](double g) { return g > 0.0; };
+  double lo = 0.0, hi = 1.0;
+  const double g_lo = g_at(0.0), g_hi = g_at(1.0);
+  if (std::isfinite(g_lo) && std::isfinite(g_hi) && !past(g_lo) && past(g_hi))
+    narrow_by_regula_falsi(g_at, past, g_lo, g_hi, lo, hi);
+  return bisect_on_grid([&](double f) { return past(g_at(f)); }, lo, hi);
 }
 
 void MeshIntegrator::locate_event(double& t_s, double step, State& s, const State& end, std::uint64_t& events) {
@@ -431,8 +461,22 @@ void MeshIntegrator::advance(double& t_s, State& s, double h_s, std::uint64_t& e
       s = rk4(t_s, s, t_end - t_s);
       break;
     }
-    const double step = step_length(t_s, t_end);
-    const State next = rk4(t_s, s, step);
+    double step = step_length(t_s, t_end);
+    State next = rk4(t_s, s, step);
+    if (options_.locate_release && stuck_) {
+      // The step ends where the mesh breaks loose, located like a regime change; the next pass's
+      // check_release frees it there (and a regime change of another effect before it is located
+      // within the shortened step as usual).
+      const double other = mesh_coordinate_force_n(t_s + step, next, false);
+      if (std::abs(other) > model_.stick_limit_n_) {
+        const double f = release_fraction(t_s, step, s, other > 0.0 ? 1.0 : -1.0);
+        if (f < 1.0) {
+          step *= f;
+          next = rk4(t_s, s, step);
+        }
+        ++events;
+      }
+    }
     if (!regime_violated(t_s + step, next)) {
       s = next;
       t_s = (step == t_end - t_s) ? t_end : t_s + step;

@@ -126,12 +126,15 @@ class MeshIntegrator {
   static constexpr std::size_t kX = 0, kV = 1, kP = 2, kPdot = 3, kTheta = 4;
 
   struct Options {
-    /// While dry friction holds the mesh inside a pulse, steps of at most τ/64: the pulse releases
-    /// the mesh within a microsecond of its onset, but release is checked only at step starts, so
-    /// with long steps it lags by up to a step (an O(h) phase error; 4x the noise power at 0.5 %
-    /// noise and ωh = 0.15, measured in the fit). Off in `simulate`, whose steps are 4-8x shorter,
-    /// so that its records stay byte-identical with earlier releases.
-    bool short_steps_while_stuck = false;
+    /// While dry friction holds the mesh, locate its release (the other forces reaching the static
+    /// limit, e.g. as the impact pulse rises) within the step, on the grid of step fractions of the
+    /// other events. Tested at step starts only, the release lags by up to a step (an O(h) phase
+    /// error) and, worse for a fit, jumps by a whole step when a parameter moves it across a step
+    /// start: the output is then discontinuous in the parameters, and a finite-difference Jacobian
+    /// whose step crosses such a jump has columns orders of magnitude too long, which makes the
+    /// fit's intervals too narrow. Off in `simulate` (steps of 5 µs at most), so that its records
+    /// stay byte-identical with earlier releases.
+    bool locate_release = false;
   };
 
   /// `pulses` sorted by onset, must outlive the run. `shaft_speed_hz`: nominal pinion speed (times
@@ -179,6 +182,9 @@ class MeshIntegrator {
   /// `end`: the state after the whole step (in the regimes frozen at its start).
   void locate_event(double& t_s, double step, State& s, const State& end, std::uint64_t& events);
   double event_fraction(double t_s, double step, const State& s, const State& end) const;
+  /// While stuck: the step fraction just past the release, where `direction` (±1) times the force
+  /// the friction must hold first exceeds the static limit (it does at the step's end).
+  double release_fraction(double t_s, double step, const State& s, double direction) const;
   std::size_t single_switching_effect() const;
   /// The product of the effects' mesh_force_factor at the current regimes (Eq. A1's g(regime)),
   /// kept in force_factor_: set wherever the regimes change, read by every right-hand side.
