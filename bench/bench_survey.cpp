@@ -191,6 +191,9 @@ int main(int argc, char** argv) {
     ridgewatch::cli::run_survey({dir + "/survey-case.wav"}, out, err);
     std::cout << out.str();
     print(c, o);
+    const auto s = ridgewatch::survey::run_survey(survey_cases::make_record(c).x, c.fs_hz);
+    std::printf("trigger: impacts' peaks %.2fx the long-term mean, band noise alone %.2fx its reference\n",
+                s.trigger_headroom, s.noise_trigger_level);
     std::cout << o.analyze_err;
     if (o.proposal) print_unmatched(c, dir);
     return 0;

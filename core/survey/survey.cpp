@@ -939,25 +939,80 @@ void propose_detector_band(Proposal& p, double f, double fs, double line_below, 
   p.detector.band_hi_hz = std::max(std::round(hi * 10) / 10, p.detector.band_lo_hz + 2.0);
 }
 
-// Step 6: trigger ratio. The detector fires when the short-term energy (sta_s) exceeds trigger_ratio
-// x max(LTA, PRE), the LTA a running mean of min(e, 3 LTA) / 0.857 over lta_s
-// (core/pipeline/impact_detector.hpp). When the decays fill much of the interval, that mean rises
-// towards the peaks (energy duty 1 / (2 sigma T)) and the default 8 never fires (measured: 1 of 150
-// impacts at 854 Hz, zeta 0.01, 25/s). Estimated here in the proposed band: the median STA peak of
-// the impacts over the fixed point of the capped mean; the ratio is half of that (margin for the
-// +-20 % impact energy spread and the 2 ms confirmation mean), at most the default 8 and at least 3
-// (Gaussian band noise exceeds 3x its mean in 5 % of the STA windows; the PRE rise reference and the
-// confirmation must also pass).
-void propose_trigger_ratio(Proposal& p, const RecordSpectrum& spectrum, SurveyResult& res) {
+// The band's mean energy per STA window (sta_s) of the detector's band, from the record's band
+// envelope at `oversample` x the band width; rate_sta: windows per second.
+std::vector<double> band_sta(const RecordSpectrum& spectrum, const pipeline::ImpactDetectorConfig& d, double oversample,
+                             double& rate_sta) {
   double fe_d = 0;
-  const auto cd = spectrum.envelope(p.detector.band_lo_hz, p.detector.band_hi_hz, 2.0, fe_d);
-  const auto per = std::max<std::size_t>(1, static_cast<std::size_t>(std::lround(p.detector.sta_s * fe_d)));
+  const auto cd = spectrum.envelope(d.band_lo_hz, d.band_hi_hz, oversample, fe_d);
+  const auto per = std::max<std::size_t>(1, static_cast<std::size_t>(std::lround(d.sta_s * fe_d)));
   std::vector<double> sta(cd.size() / per);
   for (std::size_t i = 0; i < sta.size(); ++i) {
     double acc = 0;
     for (std::size_t j = 0; j < per; ++j) acc += std::norm(cd[i * per + j]);
     sta[i] = acc / static_cast<double>(per);
   }
+  rate_sta = fe_d / static_cast<double>(per);
+  return sta;
+}
+
+// The largest level band noise alone reaches against the detector's reference (stage 4 of
+// core/pipeline/impact_detector.hpp) on the record's noise-only stretches: before the first impact
+// (from 10 ms in to 15 ms before its envelope peak) and the quiet ends of the intervals (from 10
+// amplitude time constants 1 / (2 pi f zeta) after an impact, e^-10 of its amplitude, to 15 ms before
+// the next). sta: the band's energy per STA window, rate_sta windows per second. Per window: the
+// smaller of its STA and the mean of the next 4 windows (the detector's confirmation) over the
+// reference max(the stretch's mean energy (the LTA there), the mean over the 8 ms before the window
+// (PRE)). NaN when no stretch holds 8 ms + 3 ms of windows. In a band narrower than ~500 Hz the
+// envelope's correlation time (~1/B) exceeds the 2 ms confirmation, which then no longer averages
+// the noise: its energy is exponentially distributed (P(e > r x mean) = e^-r) and reaches 8x.
+double noise_trigger_level(const std::vector<double>& sta, double rate_sta, double lta_s, const SurveyResult& res) {
+  const auto& t = res.impact_times_s;
+  if (t.empty() || res.modes.empty() || !(res.modes[0].zeta > 0)) return NAN;
+  const double tau = 1.0 / (2 * kPi * res.modes[0].f_hz * res.modes[0].zeta);
+  std::vector<std::pair<double, double>> stretches{{0.010, t[0] - 0.015}};
+  for (std::size_t i = 0; i + 1 < t.size(); ++i) stretches.emplace_back(t[i] + 10 * tau, t[i + 1] - 0.015);
+  const auto pre_n = static_cast<std::size_t>(std::ceil(0.008 * rate_sta));
+  constexpr std::size_t kConfirm = 4;
+  double level = NAN;
+  for (const auto& [a_s, b_s] : stretches) {
+    if (!(b_s > a_s)) continue;
+    const auto a = static_cast<std::size_t>(a_s * rate_sta);
+    const auto b = std::min(sta.size(), static_cast<std::size_t>(b_s * rate_sta));
+    if (b < a + pre_n + kConfirm + 2) continue;
+    // The detector's LTA there: the capped running mean (lta_s; divided by 0.857), from the stretch's mean.
+    double lta = 0.857 * std::accumulate(sta.begin() + static_cast<std::ptrdiff_t>(a), sta.begin() + static_cast<std::ptrdiff_t>(b), 0.0) /
+                 static_cast<double>(b - a);
+    const double alpha = std::min(1.0, 1.0 / (lta_s * rate_sta));
+    for (std::size_t i = a; i + kConfirm < b; ++i) {
+      lta += alpha * (std::min(sta[i], 3 * lta / 0.857) * 0.857 - lta);
+      if (i < a + pre_n) continue;
+      double pre = 0, conf = 0;
+      for (std::size_t k = i - pre_n; k < i; ++k) pre += sta[k];
+      for (std::size_t k = i + 1; k <= i + kConfirm; ++k) conf += sta[k];
+      const double ref = std::max(lta / 0.857, pre / static_cast<double>(pre_n));
+      const double r = std::min(sta[i], conf / kConfirm) / ref;
+      if (ref > 0 && !(r <= level)) level = r;
+    }
+  }
+  return level;
+}
+
+// Step 6: trigger ratio. The detector fires when the short-term energy (sta_s) exceeds trigger_ratio
+// x max(LTA, PRE), the LTA a running mean of min(e, 3 LTA) / 0.857 over lta_s
+// (core/pipeline/impact_detector.hpp). When the decays fill much of the interval, that mean rises
+// towards the peaks (energy duty 1 / (2 sigma T)) and the default 8 never fires (measured: 1 of 150
+// impacts at 854 Hz, zeta 0.01, 25/s). Estimated here in the proposed band: the median STA peak of
+// the impacts over the fixed point of the capped mean; the ratio is half of that (margin for the
+// +-20 % impact energy spread and the 2 ms confirmation mean), at most the default 8 and at least 3.
+// Where the band holds noise only (before the first impact, the quiet ends of short decays) the LTA
+// is the noise's mean, and band noise reaches noise_trigger_level() over it: the ratio is raised to
+// 1.25x that level (above 8 if need be) as far as the impacts' margin (half their peak over the LTA)
+// allows. (Exponential tail: each e-fold more noise windows than the record's raise the maximum by
+// 1; 1.25x covers ~e^2 more at the measured levels 5-9.) A note says when the impacts cannot afford it.
+void propose_trigger_ratio(Proposal& p, const RecordSpectrum& spectrum, SurveyResult& res) {
+  double rate_sta = 0;
+  const std::vector<double> sta = band_sta(spectrum, p.detector, 2.0, rate_sta);
   double lta = sta.empty() ? 0.0 : std::accumulate(sta.begin(), sta.end(), 0.0) / static_cast<double>(sta.size());
   for (int it = 0; it < 30 && lta > 0; ++it) {
     double acc = 0;
@@ -965,7 +1020,6 @@ void propose_trigger_ratio(Proposal& p, const RecordSpectrum& spectrum, SurveyRe
     lta = acc / static_cast<double>(sta.size()) / 0.857;
   }
   std::vector<double> peaks_sta;
-  const double rate_sta = fe_d / static_cast<double>(per);
   for (double ti : res.impact_times_s) {
     const auto a = static_cast<std::size_t>(std::max(0.0, (ti - 0.005) * rate_sta));
     const auto b = std::min(sta.size(), static_cast<std::size_t>((ti + 0.01) * rate_sta));
@@ -982,6 +1036,25 @@ void propose_trigger_ratio(Proposal& p, const RecordSpectrum& spectrum, SurveyRe
     if (available / 2 < 3)
       p.notes.push_back("the impacts stand less than 6x over the long-term mean: the detector may miss them");
   }
+  // The noise's tail needs the STA windows themselves (the envelope above, at ~2x the band width,
+  // holds one sample per ~2 ms and averages the confirmation over 8 ms): >= 4 samples per window.
+  double rate_fine = 0;
+  const double over = std::max(2.0, 4.0 / (p.detector.sta_s * (p.detector.band_hi_hz - p.detector.band_lo_hz)));
+  const std::vector<double> sta_fine = band_sta(spectrum, p.detector, over, rate_fine);
+  res.noise_trigger_level = noise_trigger_level(sta_fine, rate_fine, p.detector.lta_s, res);
+  const double need = 1.25 * res.noise_trigger_level;
+  if (!(need > p.detector.trigger_ratio)) return;
+  const double afford = std::isfinite(available) ? std::max(p.detector.trigger_ratio, available / 2) : p.detector.trigger_ratio;
+  if (afford > p.detector.trigger_ratio) {
+    p.detector.trigger_ratio = std::round(std::min(need, afford) * 10) / 10;
+    p.notes.push_back("trigger_ratio raised to " + fmt(p.detector.trigger_ratio) + ": band noise alone reaches " +
+                      fmt(res.noise_trigger_level) + "x the detector's reference where the band holds no decay");
+  }
+  if (p.detector.trigger_ratio < need * (1 - 1e-9))
+    p.notes.push_back("band noise alone reaches " + fmt(res.noise_trigger_level) +
+                      "x the detector's reference where the band holds no decay (before the first impact), more than " +
+                      "trigger_ratio / 1.25, which the impacts cannot afford (their peaks stand " + fmt(available) +
+                      "x over the long-term mean): expect false events there");
 }
 
 // Step 6: eta0 = the ringing mode's separating eta0 (step 4'), rounded up, when it exceeds the

@@ -131,6 +131,10 @@ struct SurveyResult {
   double decay_per_period = NAN;          ///< envelope left at the next impact, exp(-2 pi f zeta T)
   /// Median STA peak of the impacts over the detector's capped long-term mean in the proposed band.
   double trigger_headroom = NAN;
+  /// Largest level band noise alone reaches against the detector's reference in the proposed band
+  /// (its noise-only stretches; NaN when there are none): the proposed trigger_ratio stays 1.25x over it
+  /// where the impacts allow.
+  double noise_trigger_level = NAN;
   /// Averaged band envelope after the impacts (aligned at the envelope peak), for the plot; time of
   /// sample k is k / envelope_rate_hz after the peak; normalised to 1 at the peak.
   std::vector<double> mean_envelope;
