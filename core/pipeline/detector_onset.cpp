@@ -126,8 +126,6 @@ void ImpactDetector::refine_and_emit(std::uint64_t trigger, std::uint64_t end) {
   // An onset that falls at or before the segment's first sample (onset_estimate clamps it there) is
   // no onset: the rise began with the segment -- the filters' switch-on on the lines and hum the
   // stream starts in, or a decay already under way. Not emitted; the hold-off above still applies.
-  // (Measured: with a lowered trigger_ratio of 3, an event at 0.0000 s 30 ms before the first impact,
-  // 854 Hz, 25/s, 40 dB.)
   if (onset_d <= static_cast<double>(seg_start_)) return;
   if (onset_count_ < kMaxOnsets) {
     onsets_[(onset_head_ + onset_count_) % kMaxOnsets] = onset;

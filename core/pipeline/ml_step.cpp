@@ -38,12 +38,10 @@ constexpr double kUnresolvedMinCiRatio = 1.1;
 // Residual terms of the one-mode fit (MlStep::fit): a constant and a slope across the fit band, also
 // on short segments. Steady lines and decaying components outside the band leak into it through the
 // segment's ends like 1 / (f_line - f), which across a few DFT bins is a slope, not a constant. With
-// one term on segments of fewer than 9 bins (the rule before), the impact-locked mesh lines of the
-// independent records (tests/support/indep_signals.hpp; 110/220 Hz beside an 854 Hz mode at 5/s)
-// biased every event of a zeta 0.05 decay alike (15 ms windows, 7 bins: median -2.1 %, 10 of 39 ok
-// intervals missing the truth; `bench_ok_coverage sweep 3 854 5 0.05`); with two: median -0.1 %,
-// 1 miss. The price: two of the 12-14 values of the shortest segments (6 bins: 4 residual degrees of
-// freedom; the intervals widen by Student's t, report_fit in core/dsp/ml_fit.cpp).
+// a constant only, impact-locked lines outside the band bias every event of a short decay alike
+// (README, survey section, "median |zeta error| above 2 %"). The price: two of the 12-14 values of
+// the shortest segments (6 bins: 4 residual degrees of freedom; the intervals widen by Student's t,
+// report_fit in core/dsp/ml_fit.cpp).
 constexpr int kResidualTerms = 2;
 
 // Residual degrees of freedom of a fit: 2 values per DFT bin minus 4 per mode and 2 per residual term.
