@@ -82,7 +82,11 @@ inline bool wait_for(const std::function<bool()>& cond, std::chrono::millisecond
 class Broker {
  public:
   Broker(const std::filesystem::path& dir, int port) : dir_(dir), port_(port) { start(); }
-  void start() {
+  /// `save_every_change` false: the database is saved once a minute instead, for a broker that is
+  /// not killed again. Saving after every change writes the whole database (every message queued
+  /// for a subscriber) per incoming message, so a subscriber that falls behind on a loaded host
+  /// makes each save longer and the broker slower: it then never catches up.
+  void start(bool save_every_change = true) {
     std::filesystem::create_directories(dir_);
     const auto conf = dir_ / "mosquitto.conf";
     std::ofstream(conf) << "listener " << port_ << " 127.0.0.1\nallow_anonymous true\npersistence true\n"
@@ -91,7 +95,8 @@ class Broker {
                         // 1 s timer the messages acknowledged since the last save and not yet
                         // delivered to a slow subscriber (a loaded ThreadSanitizer run: 35 of 755)
                         // were lost by the broker, not by the daemon.
-                        << "persistence_location " << dir_.string() << "/\nautosave_interval 1\nautosave_on_changes true\n"
+                        << "persistence_location " << dir_.string() << "/\n"
+                        << (save_every_change ? "autosave_interval 1\nautosave_on_changes true\n" : "autosave_interval 60\n")
                         << "max_queued_messages 0\nlog_dest stderr\n"
                         // Started as root, mosquitto drops to user "mosquitto", which cannot write here.
                         << (::geteuid() == 0 ? "user root\n" : "");
@@ -188,6 +193,12 @@ class Subscriber {
   std::vector<Msg> messages() {
     std::lock_guard<std::mutex> lock(mutex_);
     return messages_;
+  }
+  /// The messages received after the first `first` (for readers that keep their place).
+  std::vector<Msg> messages_from(std::size_t first) {
+    std::lock_guard<std::mutex> lock(mutex_);
+    if (first >= messages_.size()) return {};
+    return std::vector<Msg>(messages_.begin() + static_cast<std::ptrdiff_t>(first), messages_.end());
   }
   std::size_t count() {
     std::lock_guard<std::mutex> lock(mutex_);
