@@ -592,11 +592,9 @@ int coverage(const std::string& which, int seeds, double force_n) {
   if (!key.empty()) truths.insert(truths.begin(), {key, truth});
   std::vector<int> covered(truths.size(), 0);
   std::vector<double> z2(truths.size(), 0.0);
-  const bool own = which.rfind("coulomb-own", 0) == 0;
   std::printf("| seed | held-out excess | Ljung-Box Q |");
   for (const auto& [name, v] : truths) std::printf(" %s (95 %%), truth %.4g |", name.c_str(), v);
-  if (own) std::printf(" first window's start offset c0 x (N): fitted, truth |");
-  std::printf("\n|---|---|---|%s%s\n", truths.size() > 2 ? "---|---|---|" : "---|---|", own ? "---|" : "");
+  std::printf("\n|---|---|---|%s\n", truths.size() > 2 ? "---|---|---|" : "---|---|");
   for (int seed = 1; seed <= seeds; ++seed) {
     st.seed = static_cast<std::uint64_t>(seed) * 7727u + 3u;
     rm::RigParameters rig;
@@ -623,22 +621,6 @@ int coverage(const std::string& which, int seeds, double force_n) {
           z2[k] += z * z;
           std::printf(" %.5g (%.5g .. %.5g)%s |", e.value, e.ci95_lo, e.ci95_hi, in ? "" : " MISS");
         }
-    if (own) {
-      // The true offset: the same record's mesh deflection x at the first window's start (the
-      // simulator again with a displacement sensor, before the sensor effects; no random draw depends
-      // on the sensor quantity). Both as spring force c0 x, N (the friction band is ±force_n).
-      rm::RigParameters disp = rig;
-      disp.sensor_quantity = rm::SensorQuantity::kDisplacement;
-      rm::SimulationSettings ss;
-      ss.sample_rate_hz = st.sample_rate_hz;
-      ss.duration_s = lead_s + 0.64;
-      ss.seed = st.seed;
-      const auto r = rm::simulate(disp, {{"coulomb_friction", {{"force_n", truth}}}, {"noise", {{"std_rel", 0.01}}}}, ss);
-      const auto first = static_cast<std::size_t>(lead_s * st.sample_rate_hz) + seg.windows[0].begin;
-      const double x_true = r.clean_output[first] / disp.sensor_sensitivity;
-      const double x_fit = fitter.start_offset_m(f, 0);
-      std::printf(" %.2f, %.2f |", x_fit * rig.mean_mesh_stiffness_n_per_m, x_true * rig.mean_mesh_stiffness_n_per_m);
-    }
     std::printf("\n");
     std::fflush(stdout);
   }

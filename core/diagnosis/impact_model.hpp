@@ -131,9 +131,6 @@ class WindowSimulator {
   /// Closed-form free decay of a transient over dt seconds (both modes linear, Eq. A2 with constant ζ).
   ModelState propagate(const ModelState& s, double dt_s, double t_abs_s) const;
   bool has_dry_friction() const { return model_->stick_limit_n() > 0.0; }
-  /// The largest deflection dry friction can hold the mesh at, at rest: stick limit / c0 (m; the
-  /// friction band ±F_c / c0). Zero without dry friction.
-  double held_offset_limit_m() const { return model_->stick_limit_n() / physics_.c0_n_per_m; }
   /// Whether the motion between two windows must be integrated (ModelFitter's carried state) rather
   /// than decayed in closed form: the closed form is the linear mesh's, right for the small leftover
   /// tail of a model that is linear near rest. Not so with dry friction (the mesh sticks at an offset

@@ -112,12 +112,6 @@ bool ModelFitter::frees_heldout_nuisances(const FitResult& f) const {
   return friction_carry_fit_ && WindowSimulator(rig_, physics(f.layout, f.params), seg_.sample_rate_hz).has_dry_friction();
 }
 
-double ModelFitter::start_offset_m(const FitResult& f, std::size_t w) const {
-  if (w >= f.params.offset.size()) return 0.0;
-  return WindowSimulator(rig_, physics(f.layout, f.params), seg_.sample_rate_hz).held_offset_limit_m() *
-         std::tanh(f.params.offset[w]);
-}
-
 void ModelFitter::set_parameter_settings(const std::map<std::string, ParameterSetting>& settings) {
   for (const auto& [name, s] : settings) {
     const auto dot = name.find('.');
@@ -170,16 +164,9 @@ WindowSimulator::Impact ModelFitter::impact(std::size_t w, const FitParams& p) c
           win.mesh_hz, p.polarity};
 }
 
-ModelState ModelFitter::carry(const WindowSimulator& sim, std::size_t w, const FitParams& p, const Chain& c) const {
+ModelState ModelFitter::carry(const WindowSimulator& sim, std::size_t w, const Chain& c) const {
   const int pred = seg_.windows[w].predecessor;
-  if (pred < 0) {
-    // No predecessor in the fit: at rest, at the held offset where dry friction stopped the motion of
-    // an earlier impact (a nuisance, fitted only with dry friction; zero otherwise).
-    ModelState s;
-    if (w < p.offset.size()) s.x = sim.held_offset_limit_m() * std::tanh(p.offset[w]);
-    return s;
-  }
-  if (c.end.size() <= static_cast<std::size_t>(pred)) return {};
+  if (pred < 0 || c.end.size() <= static_cast<std::size_t>(pred)) return {};
   const auto& e = c.end[static_cast<std::size_t>(pred)];
   const double fs = seg_.sample_rate_hz;
   const auto& pw = seg_.windows[static_cast<std::size_t>(pred)];
@@ -216,7 +203,7 @@ ModelState ModelFitter::carry(const WindowSimulator& sim, std::size_t w, const F
 void ModelFitter::simulate_window(const WindowSimulator& sim, std::size_t w, const FitParams& p, const Chain& c,
                                   std::vector<double>& out, WindowSimulator::End& end,
                                   std::vector<TraceSample>* trace) const {
-  simulate_window(sim, w, p, carry(sim, w, p, c), out, end, trace);
+  simulate_window(sim, w, p, carry(sim, w, c), out, end, trace);
 }
 
 void ModelFitter::simulate_window(const WindowSimulator& sim, std::size_t w, const FitParams& p,
@@ -240,7 +227,7 @@ ModelFitter::Linearisation ModelFitter::linearise(const FitResult& fit) const {
   std::vector<double> m;
   WindowSimulator::End end;
   for (std::size_t w = 0; w < nw; ++w) {
-    const ModelState carried = carry(sim, w, fit.params, c);
+    const ModelState carried = carry(sim, w, c);
     simulate_window(sim, w, fit.params, carried, c.out[w], c.end[w], &lin.states[w]);
     // The steps of FitProblem::df: 1e-6 in ln F, 1e-4 samples of onset.
     for (int which = 0; which < 2; ++which) {
@@ -273,7 +260,6 @@ void ModelFitter::initialise_nuisances(FitParams& p, const std::vector<GlobalPar
   const std::size_t nw = seg_.windows.size();
   p.ln_force.assign(nw, 0.0);
   p.shift.assign(nw, 0.0);
-  p.offset.assign(nw, 0.0);
   const WindowSimulator sim(rig_, physics(layout, p), seg_.sample_rate_hz);
   const double fs = seg_.sample_rate_hz;
   std::vector<double> m;
@@ -327,7 +313,6 @@ struct FitProblem {
   FitParams base;                  // values of the parameters not being fitted
   bool globals_free = true;
   std::vector<std::size_t> free_windows;  // nuisances fitted
-  std::vector<std::size_t> offset_windows;  // start offsets fitted (windows without a predecessor)
   std::vector<std::size_t> row_windows;   // residual rows
   std::vector<std::size_t> row_offset;    // by window index, npos if not a row
   Eigen::Index rows = 0;
@@ -371,7 +356,7 @@ struct FitProblem {
   }
   static bool same(const FitParams& a, const FitParams& b) {
     return a.polarity == b.polarity && a.pulse_shape == b.pulse_shape && a.u.size() == b.u.size() && a.u == b.u && a.ln_force == b.ln_force &&
-           a.shift == b.shift && a.offset == b.offset;
+           a.shift == b.shift;
   }
   const ModelFitter::Chain& chain_cached(const FitParams& p) const {
     if (!cached || !same(p, cached_p)) {
@@ -382,8 +367,7 @@ struct FitProblem {
     return cached_chain;
   }
   int inputs() const {
-    return (globals_free ? static_cast<int>(layout.size()) : 0) + 2 * static_cast<int>(free_windows.size()) +
-           static_cast<int>(offset_windows.size());
+    return (globals_free ? static_cast<int>(layout.size()) : 0) + 2 * static_cast<int>(free_windows.size());
   }
   int values() const { return static_cast<int>(rows); }
 
@@ -396,7 +380,6 @@ struct FitProblem {
       p.ln_force[w] = x[k++];
       p.shift[w] = x[k++];
     }
-    for (std::size_t w : offset_windows) p.offset[w] = x[k++];
     return p;
   }
   Eigen::VectorXd pack(const FitParams& p) const {
@@ -408,7 +391,6 @@ struct FitProblem {
       x[k++] = p.ln_force[w];
       x[k++] = p.shift[w];
     }
-    for (std::size_t w : offset_windows) x[k++] = p.offset[w];
     return x;
   }
   void fill_rows(std::size_t w, const std::vector<double>& m, double* dst) const {
@@ -451,33 +433,17 @@ struct FitProblem {
     const WindowSimulator sim(fitter->rig(), fitter->physics(layout, p), seg.sample_rate_hz);
     std::vector<double> m, m2;
     std::vector<double> r;
-    // Nuisance columns in pack() order: (window, which) with which 0 = ln F, 1 = onset, 2 = start offset.
-    std::vector<std::pair<std::size_t, int>> columns;
     for (std::size_t w : free_windows) {
-      columns.push_back({w, 0});
-      columns.push_back({w, 1});
-    }
-    for (std::size_t w : offset_windows) columns.push_back({w, 2});
-    std::size_t carried_w = static_cast<std::size_t>(-1);
-    ModelState carried;
-    for (const auto& [w, which] : columns) {
-      if (carried_w != w) {
-        carried = fitter->carry(sim, w, p, c);
-        carried_w = w;
-      }
-      {
+      const ModelState carried = fitter->carry(sim, w, c);
+      for (int which = 0; which < 2; ++which, ++col) {
         FitParams q = p;
-        // Steps: 1e-6 in ln F and in the offset (1e-6 of the friction band near its middle), 1e-4
-        // samples of onset.
-        const double h = which == 1 ? 1e-4 : 1e-6;
+        const double h = which == 0 ? 1e-6 : 1e-4;
         if (which == 0) q.ln_force[w] += h;
-        else if (which == 1) q.shift[w] += h;
-        else q.offset[w] += h;
-        const ModelState carried_q = which == 2 ? fitter->carry(sim, w, q, c) : carried;
+        else q.shift[w] += h;
         ModelFitter::Chain cq;
         cq.end = c.end;
         WindowSimulator::End end;
-        fitter->simulate_window(sim, w, q, carried_q, m, end);
+        fitter->simulate_window(sim, w, q, carried, m, end);
         if (row_offset[w] != static_cast<std::size_t>(-1)) {
           r.resize(m.size());
           fill_rows(w, m, r.data());
@@ -500,15 +466,13 @@ struct FitProblem {
           }
         }
       }
-      ++col;
     }
     return 0;
   }
 };
 
-// The nuisances of one window with the physics frozen and the carried tail of its predecessor
-// given: residual rows of that window only (a few hundred rows, 2 unknowns: ln F and the onset
-// shift; 3 with the start offset of a window without a predecessor in a model with dry friction).
+// The two nuisances of one window with the physics frozen and the carried tail of its predecessor
+// given: residual rows of that window only (a few hundred rows, 2 unknowns).
 struct WindowProblem {
   enum { InputsAtCompileTime = Eigen::Dynamic, ValuesAtCompileTime = Eigen::Dynamic };
   using Scalar = double;
@@ -519,7 +483,6 @@ struct WindowProblem {
   const ModelFitter* fitter = nullptr;
   const WindowSimulator* sim = nullptr;
   ModelState carried;  // into window w from the chain (fixed while its nuisances are fitted)
-  bool with_offset = false;  // x[2] is the start offset (FitParams::offset), replacing carried.x
   FitParams* p = nullptr;
   std::size_t w = 0;
   Eigen::Index rows = 0;
@@ -528,28 +491,27 @@ struct WindowProblem {
   // The output at the point of the latest residual evaluation: LM evaluates a point and then its
   // Jacobian there, and the refit ends with the output at its final point (compared exactly).
   mutable bool cached = false;
-  mutable Eigen::VectorXd cached_x;
+  mutable double cached_ln_force = 0.0, cached_shift = 0.0;
   mutable std::vector<double> cached_out;
   mutable WindowSimulator::End cached_end;
 
-  int inputs() const { return with_offset ? 3 : 2; }
+  int inputs() const { return 2; }
   int values() const { return static_cast<int>(rows); }
-  /// Model output of window w at the nuisances x (ln F, onset shift in samples[, start offset]).
-  void simulate(const Eigen::VectorXd& x, std::vector<double>& out, WindowSimulator::End& end) const {
+  /// Model output of window w at the nuisances (ln F, onset shift in samples).
+  void simulate(double ln_force, double shift, std::vector<double>& out, WindowSimulator::End& end) const {
     const double keep_f = p->ln_force[w], keep_s = p->shift[w];
-    p->ln_force[w] = x[0];
-    p->shift[w] = x[1];
-    ModelState from = carried;
-    if (with_offset) from.x = sim->held_offset_limit_m() * std::tanh(x[2]);
-    fitter->simulate_window(*sim, w, *p, from, out, end);
+    p->ln_force[w] = ln_force;
+    p->shift[w] = shift;
+    fitter->simulate_window(*sim, w, *p, carried, out, end);
     p->ln_force[w] = keep_f;
     p->shift[w] = keep_s;
   }
   /// simulate at the point of the latest call, or the cached output if it is the same point.
-  const std::vector<double>& output_at(const Eigen::VectorXd& x, WindowSimulator::End& end) const {
-    if (!cached || x.size() != cached_x.size() || x != cached_x) {
-      simulate(x, cached_out, cached_end);
-      cached_x = x;
+  const std::vector<double>& output_at(double ln_force, double shift, WindowSimulator::End& end) const {
+    if (!cached || ln_force != cached_ln_force || shift != cached_shift) {
+      simulate(ln_force, shift, cached_out, cached_end);
+      cached_ln_force = ln_force;
+      cached_shift = shift;
       cached = true;
     }
     end = cached_end;
@@ -563,24 +525,21 @@ struct WindowProblem {
   }
   int operator()(const Eigen::VectorXd& x, Eigen::VectorXd& f) const {
     WindowSimulator::End end;
-    residual(output_at(x, end), f.data());
+    residual(output_at(x[0], x[1], end), f.data());
     return 0;
   }
   int df(const Eigen::VectorXd& x, Eigen::MatrixXd& J) const {
-    // Forward differences with the steps of FitProblem::df (1e-6 in ln F and in the offset, 1e-4
-    // samples of onset).
+    // Forward differences with the steps of FitProblem::df (1e-6 in ln F, 1e-4 samples of onset).
     Eigen::VectorXd f0(rows), f1(rows);
     WindowSimulator::End end;
-    residual(output_at(x, end), f0.data());
-    J.resize(rows, inputs());
-    for (int k = 0; k < inputs(); ++k) {
-      const double h = k == 1 ? 1e-4 : 1e-6;
-      Eigen::VectorXd xk = x;
-      xk[k] += h;
-      simulate(xk, m, end);
-      residual(m, f1.data());
-      J.col(k) = (f1 - f0) / h;
-    }
+    residual(output_at(x[0], x[1], end), f0.data());
+    J.resize(rows, 2);
+    simulate(x[0] + 1e-6, x[1], m, end);
+    residual(m, f1.data());
+    J.col(0) = (f1 - f0) / 1e-6;
+    simulate(x[0], x[1] + 1e-4, m, end);
+    residual(m, f1.data());
+    J.col(1) = (f1 - f0) / 1e-4;
     return 0;
   }
 };
@@ -710,8 +669,6 @@ bool ModelFitter::start_values(const std::vector<GlobalParameter>& L, const FitR
   if (warm != nullptr) {
     p.ln_force = warm->params.ln_force;
     p.shift = warm->params.shift;
-    p.offset = warm->params.offset;
-    p.offset.resize(p.ln_force.size(), 0.0);
     p.polarity = warm->params.polarity;
   } else {
     initialise_nuisances(p, L);
@@ -743,7 +700,7 @@ void ModelFitter::restart_bad_windows(FitProblem& train, FitParams& p, int budge
     for (std::size_t w : train.row_windows) {
       const double power = power_of(w, c.out[w]);
       if (power <= 2.0) continue;
-      const ModelState carried = carry(sim, w, p, c);
+      const ModelState carried = carry(sim, w, c);
       FitParams q = p;
       if (!onset_grid(sim, w, p, carried, q.ln_force[w], q.shift[w])) continue;
       WindowSimulator::End end;
@@ -780,11 +737,7 @@ void ModelFitter::training_statistics(const FitProblem& train, const FitParams& 
     // Globals and the training windows' nuisances: held-out nuisances freed for dry friction (fit())
     // reach these rows only through the carried offset, and counting them would charge a friction
     // candidate 2 ln n per held-out impact that the linear model it is compared with does not pay.
-    // A training window's start offset is fitted on its own rows like its force and onset: counted.
-    int heldout_offsets = 0;
-    for (std::size_t w : train.offset_windows) heldout_offsets += is_heldout(w) ? 1 : 0;
-    res.free_parameters = train.inputs() - 2 * static_cast<int>(train.free_windows.size() - train.row_windows.size()) -
-                          heldout_offsets;
+    res.free_parameters = train.inputs() - 2 * static_cast<int>(train.free_windows.size() - train.row_windows.size());
     // A value chosen from the data by a scan (diagnose's step time) is a parameter as well.
     for (const auto& [name, s] : settings_)
       if (s.chosen_from_data && std::find(res.effects.begin(), res.effects.end(), name.substr(0, name.find('.'))) != res.effects.end())
@@ -822,7 +775,7 @@ void ModelFitter::training_statistics(const FitProblem& train, const FitParams& 
   }
 }
 
-ModelFitter::Chain ModelFitter::heldout_refit(const std::vector<GlobalParameter>& L, FitParams& p, bool offsets) const {
+ModelFitter::Chain ModelFitter::heldout_refit(const std::vector<GlobalParameter>& L, FitParams& p) const {
   const std::size_t nw = seg_.windows.size();
   // Held-out: physics frozen, every impact's nuisances refitted (so the carried tails are right),
   // error on held-out rows only. Window by window in time order, each with its predecessor's final
@@ -838,8 +791,7 @@ ModelFitter::Chain ModelFitter::heldout_refit(const std::vector<GlobalParameter>
       WindowProblem wp;
       wp.fitter = this;
       wp.sim = &sim;
-      wp.carried = carry(sim, w, p, chain);
-      wp.with_offset = offsets && seg_.windows[w].predecessor < 0;
+      wp.carried = carry(sim, w, chain);
       wp.p = &p;
       wp.w = w;
       wp.rows = static_cast<Eigen::Index>(seg_.windows[w].end - seg_.windows[w].begin);
@@ -856,21 +808,18 @@ ModelFitter::Chain ModelFitter::heldout_refit(const std::vector<GlobalParameter>
         for (std::uint64_t i = seg_.windows[w].begin; i < seg_.windows[w].end; ++i) n_used += seg_.weight[i];
         return f.squaredNorm() / std::max(1.0, n_used);
       };
-      Eigen::VectorXd x(wp.inputs());
-      x[0] = p.ln_force[w];
-      x[1] = p.shift[w];
-      if (wp.with_offset) x[2] = p.offset[w];
+      Eigen::VectorXd x(2);
+      x << p.ln_force[w], p.shift[w];
       const double power = solve(x);
       // A window left well above the noise (2x its power) may sit in a wrong onset basin (its start
       // came from a fit at other physics): restart it from the onset grid at the fitted physics.
       if (power > 2.0) {
-        Eigen::VectorXd g = x;
+        Eigen::VectorXd g(2);
         if (onset_grid(sim, w, p, wp.carried, g[0], g[1]) && solve(g) < power) x = g;
       }
-      chain.out[w] = wp.output_at(x, chain.end[w]);
+      chain.out[w] = wp.output_at(x[0], x[1], chain.end[w]);
       p.ln_force[w] = x[0];
       p.shift[w] = x[1];
-      if (wp.with_offset) p.offset[w] = x[2];
     }
     return chain;
   }
@@ -933,19 +882,10 @@ FitResult ModelFitter::fit(const std::vector<std::string>& effects, const FitRes
   // Their rows stay held out, so the held-out judgement is unchanged; they reach the training
   // rows only through the carried state.
   const bool free_heldout = friction_carry_fit_ && WindowSimulator(rig_, physics(L, p), seg_.sample_rate_hz).has_dry_friction();
-  // With dry friction also the start offset of each window without a predecessor: the mesh is held
-  // where an impact before the window (before the record's start, or in a gap left out) stopped it,
-  // anywhere in the friction band, and starting that window from rest at x = 0 put the wrong offset
-  // into its response and its successors' (c0's interval 2 times too narrow at 50 N, README "Interval
-  // coverage"). A smooth model has no held offset: its first window starts from the decayed tail of
-  // an impact at least a revolution earlier (e^-5 of the peak), which a held offset (v = 0) would not
-  // describe; there the offsets stay 0 and the fit is as before.
   for (std::size_t w = 0; w < nw; ++w) {
     if (!is_heldout(w)) train.row_windows.push_back(w);
     if (!is_heldout(w) || free_heldout) train.free_windows.push_back(w);
-    if (free_heldout && seg_.windows[w].predecessor < 0) train.offset_windows.push_back(w);
   }
-  if (!free_heldout) p.offset.assign(nw, 0.0);
   // Budget: 40 Jacobians' worth of evaluations is ample for this smooth problem (typically 5–15 LM
   // steps) and bounds the time of a pathological candidate.
   const int budget = 40 * (train.inputs() + 1);
@@ -977,7 +917,7 @@ FitResult ModelFitter::fit(const std::vector<std::string>& effects, const FitRes
 
   training_statistics(train, p, res);
 
-  const Chain heldout = heldout_refit(L, p, free_heldout);
+  const Chain heldout = heldout_refit(L, p);
   heldout_statistics(p, heldout, res);
   return res;
 }

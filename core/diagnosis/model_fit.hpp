@@ -6,10 +6,7 @@
 //   globals  ln(c0 / c0_nominal), ln ζ, the free parameters of each effect in the model
 //            (core/diagnosis/impact_model.hpp candidate_table), and the mesh phase φ_z when a
 //            mesh-periodic effect is present;
-//   per impact  ln(F / F_nominal) (pulse peak force) and the onset shift (samples) from the detector;
-//            with dry friction also, per window without a predecessor (the record's first, the first
-//            of each run of subset_windows), the offset at which friction holds the mesh at the
-//            window start (FitParams::offset).
+//   per impact  ln(F / F_nominal) (pulse peak force) and the onset shift (samples) from the detector.
 // Residual rows: (y - model) / σ over each window's unmasked samples, σ = the noise floor between
 // impacts. Optimiser: Eigen's Levenberg–Marquardt (unsupported/Eigen/NonLinearOptimization) with a
 // forward-difference Jacobian that exploits the structure (a nuisance moves only its own window and
@@ -20,10 +17,7 @@
 // training nuisances on training rows (held-out nuisances stay at their initial values; they reach the
 // training rows only through the small carried tail; with dry friction that tail is an offset in the
 // friction band, as large as a few % of the response, and the held-out nuisances are fitted too,
-// through the training rows only; so are the start offsets of the windows without a predecessor).
-// The BIC counts the nuisances fitted on their own training rows (a training window's force, onset
-// and start offset), not those that reach the training rows only through a carried state (a held-out
-// window's). Held-out: globals frozen, all nuisances refitted
+// through the training rows only). Held-out: globals frozen, all nuisances refitted
 // window by window in time order (each on its own rows, with its predecessor's final tail carried in),
 // the error reported on held-out rows only.
 #pragma once
@@ -54,13 +48,6 @@ struct FitParams {
   Eigen::VectorXd u;               ///< globals in optimiser space (layout order)
   std::vector<double> ln_force;    ///< per window: ln(F / F_nominal)
   std::vector<double> shift;       ///< per window: onset - detected onset, samples
-  /// Per window: the mesh deflection x at the window start, held there by dry friction (v = 0), as
-  /// x = (F_c / c0) tanh(offset): inside the friction band, where a mesh at rest stays held (outside
-  /// it the mesh would slip before the impact; ModelFitter::start_offset_m). Fitted only for a window without a predecessor in a
-  /// model with dry friction (ModelFitter::fits_start_offsets): the state an impact before the
-  /// window (before the record's start, or in a gap the segmentation skipped) left behind, anywhere in
-  /// the friction band ±F_c / c0. Zero (or empty) otherwise: such a window starts at rest at x = 0.
-  std::vector<double> offset;
   double polarity = 1.0;
   /// Impact pulse shape (not fitted by LM: a choice, ModelFitter::set_pulse_shape and
   /// fit_pulse_shapes below).
@@ -124,11 +111,8 @@ class ModelFitter {
   /// diagnose screens its candidates with it off (a friction fit costs about twice as much with it,
   /// the choice of effects does not depend on it) and refits its final model with it on.
   void set_friction_carry_fit(bool on) { friction_carry_fit_ = on; }
-  /// Whether fit() frees the held-out nuisances for the model of `f` (it has dry friction). The same
-  /// setting frees the start offsets of the windows without a predecessor (FitParams::offset).
+  /// Whether fit() frees the held-out nuisances for the model of `f` (it has dry friction).
   bool frees_heldout_nuisances(const FitResult& f) const;
-  /// The held start offset x (m) of window w of a fit (FitParams::offset mapped into the band).
-  double start_offset_m(const FitResult& f, std::size_t w) const;
   /// The impact pulse shape of the fits that follow (half-sine by default); a fit keeps its own in
   /// FitParams, so its later evaluations do not depend on this setting. fit_pulse_shapes() chooses.
   void set_pulse_shape(model::PulseShape shape) { pulse_shape_ = shape; }
@@ -175,13 +159,11 @@ class ModelFitter {
   friend struct FitProblem;
   friend struct WindowProblem;
   WindowSimulator::Impact impact(std::size_t w, const FitParams& p) const;
-  /// The state carried into window w: its predecessor's tail through the gap, or for a window
-  /// without one its held start offset p.offset[w] (zero unless fitted).
-  ModelState carry(const WindowSimulator& sim, std::size_t w, const FitParams& p, const Chain& c) const;
+  ModelState carry(const WindowSimulator& sim, std::size_t w, const Chain& c) const;
   void simulate_window(const WindowSimulator& sim, std::size_t w, const FitParams& p, const Chain& c,
                        std::vector<double>& out, WindowSimulator::End& end,
                        std::vector<TraceSample>* trace = nullptr) const;
-  /// The same from the transient `carried` into window w (carry(sim, w, p, c)): callers that simulate
+  /// The same from the transient `carried` into window w (carry(sim, w, c)): callers that simulate
   /// one window many times over the same chain compute it once (with dry friction it is an
   /// integration of the whole gap).
   void simulate_window(const WindowSimulator& sim, std::size_t w, const FitParams& p, const ModelState& carried,
@@ -196,9 +178,7 @@ class ModelFitter {
   void restart_bad_windows(FitProblem& train, FitParams& p, int budget, FitResult& res) const;
   void training_statistics(const FitProblem& train, const FitParams& p, FitResult& res) const;
   /// Returns the chain at the refitted nuisances (every window).
-  /// `offsets`: the start offsets of windows without a predecessor are refitted with their other
-  /// nuisances (a model with dry friction, fit()).
-  Chain heldout_refit(const std::vector<GlobalParameter>& layout, FitParams& p, bool offsets) const;
+  Chain heldout_refit(const std::vector<GlobalParameter>& layout, FitParams& p) const;
   void heldout_statistics(const FitParams& p, const Chain& c, FitResult& res) const;
   /// Best onset shift (grid) and force (projection) of window w at the given physics and tail.
   bool onset_grid(const WindowSimulator& sim, std::size_t w, const FitParams& p, const ModelState& carried,
