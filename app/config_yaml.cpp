@@ -30,6 +30,7 @@ void walk_pipeline(pipeline::PipelineConfig& p, V& v) {
     v.num("holdoff_s", d.holdoff_s);
     v.num("spike_mad", d.spike_mad);
     v.flag("trigger_innovation", d.trigger_innovation);
+    v.num("trigger_noise_ratio", d.trigger_noise_ratio);
   });
   v.map("analyzer", [&] {
     v.num("f_expected_hz", a.f_expected_hz);

@@ -78,7 +78,7 @@ json to_json(const survey::SurveyResult& r, const std::string& name) {
     const auto& p = *r.proposal;
     json d = {{"band_lo_hz", p.detector.band_lo_hz}, {"band_hi_hz", p.detector.band_hi_hz},
               {"trigger_ratio", p.detector.trigger_ratio}, {"holdoff_s", p.detector.holdoff_s},
-              {"trigger_innovation", p.detector.trigger_innovation}};
+              {"trigger_innovation", p.detector.trigger_innovation}, {"trigger_noise_ratio", p.detector.trigger_noise_ratio}};
     json a = {{"f_expected_hz", p.analyzer.f_expected_hz}, {"band_rel", p.analyzer.band_rel}, {"eta0", p.analyzer.eta0},
               {"ml_band_rel", p.analyzer.ml_band_rel}, {"window_s", p.analyzer.window_s},
               {"clip_level", p.analyzer.clip_level}};
@@ -141,6 +141,7 @@ std::string proposal_yaml(const survey::Proposal& p) {
     << "    trigger_ratio: " << f(p.detector.trigger_ratio) << "\n"
     << "    holdoff_s: " << f(p.detector.holdoff_s) << "\n"
     << "    trigger_innovation: " << (p.detector.trigger_innovation ? "true" : "false") << "\n"
+    << "    trigger_noise_ratio: " << f(p.detector.trigger_noise_ratio) << "\n"
     << "  analyzer:\n"
     << "    f_expected_hz: " << f(p.analyzer.f_expected_hz) << "\n"
     << "    band_rel: " << f(p.analyzer.band_rel) << "\n"
@@ -191,6 +192,7 @@ int survey_and_report(const std::vector<double>& samples, double fs, const std::
     c.pipeline.detector.trigger_ratio = p.detector.trigger_ratio;
     c.pipeline.detector.holdoff_s = p.detector.holdoff_s;
     c.pipeline.detector.trigger_innovation = p.detector.trigger_innovation;
+    c.pipeline.detector.trigger_noise_ratio = p.detector.trigger_noise_ratio;
     c.pipeline.analyzer.f_expected_hz = p.analyzer.f_expected_hz;
     c.pipeline.analyzer.band_rel = p.analyzer.band_rel;
     c.pipeline.analyzer.eta0 = p.analyzer.eta0;

@@ -20,6 +20,8 @@
 #include <unistd.h>
 
 #include "bench/survey_cases.hpp"
+#include "core/pipeline/impact_detector.hpp"
+#include "core/survey/band_envelope.hpp"
 #include "core/survey/survey.hpp"
 
 namespace {
@@ -151,6 +153,90 @@ void print_unmatched(const survey_cases::Case& c, const std::string& dir) {
       std::printf("missed impact at %.4f s: nearest event %.4f s (%+.2f ms)\n", t, nearest(events, t), 1e3 * (nearest(events, t) - t));
 }
 
+// `noise`: the detector's own band energy (ImpactDetector with the survey's proposed detector block)
+// on the survey's noise-only stretches (as noise_trigger_level in core/survey/survey.cpp: from 10
+// decay time constants after each impact to 15 ms before the next, and before the first impact):
+// its mean over the white-noise band power the spike stage implies, the share of band samples
+// above 3x / 5x / 8x the stretch's mean (exponential: e^-r), and the largest min(STA, 2 ms mean)
+// over max(mean, 8 ms before), as noise_trigger_level reads the survey's FFT envelope.
+void noise_mode(const survey_cases::Case& c) {
+  const auto r = survey_cases::make_record(c);
+  const auto s = ridgewatch::survey::run_survey(r.x, c.fs_hz);
+  if (!s.proposal || s.modes.empty()) {
+    std::printf("no proposal\n");
+    return;
+  }
+  auto d = s.proposal->detector;
+  ridgewatch::pipeline::ImpactDetector det(d, c.fs_hz, r.x.size() + 16);
+  for (double v : r.x) det.push(static_cast<float>(v));
+  const std::size_t D = det.decimation();
+  const double fs_d = c.fs_hz / static_cast<double>(D);
+  std::vector<double> e;  // one value per band sample: the band power over its D input samples
+  for (std::size_t n = 0; n + D + 8 < r.x.size(); n += D) e.push_back(det.band_power(n, n + std::max<std::size_t>(D, 8)));
+  const double tau = 1.0 / (2 * 3.141592653589793 * s.modes[0].f_hz * s.modes[0].zeta);
+  const auto& t = s.impact_times_s;
+  std::vector<std::pair<double, double>> st{{0.010, t.empty() ? 0.0 : t[0] - 0.015}};
+  for (std::size_t i = 0; i + 1 < t.size(); ++i) st.emplace_back(t[i] + 10 * tau, t[i + 1] - 0.015);
+  const auto sta_n = std::max<std::size_t>(1, static_cast<std::size_t>(std::lround(d.sta_s * fs_d)));
+  const auto conf_n = 4 * sta_n;
+  const auto pre_n = static_cast<std::size_t>(std::ceil(fs_d / (0.5 * (d.band_hi_hz - d.band_lo_hz))));
+  double level = 0, level_t = NAN, sum = 0;
+  std::size_t count = 0, over3 = 0, over5 = 0, over8 = 0;
+  for (const auto& [a_s, b_s] : st) {
+    const auto a = static_cast<std::size_t>(std::max(0.0, a_s) * fs_d);
+    const auto b = std::min(e.size(), static_cast<std::size_t>(std::max(0.0, b_s) * fs_d));
+    if (b < a + pre_n + conf_n + sta_n + 2) continue;
+    double mean = 0;
+    for (std::size_t i = a; i < b; ++i) mean += e[i];
+    mean /= static_cast<double>(b - a);
+    for (std::size_t i = a; i < b; ++i) {
+      sum += e[i] / mean;
+      ++count;
+      over3 += e[i] > 3 * mean;
+      over5 += e[i] > 5 * mean;
+      over8 += e[i] > 8 * mean;
+    }
+    for (std::size_t i = a + pre_n + sta_n; i + conf_n < b; ++i) {
+      double sta = 0, pre = 0, conf = 0;
+      for (std::size_t k = i + 1 - sta_n; k <= i; ++k) sta += e[k];
+      for (std::size_t k = i + 1 - sta_n - pre_n; k < i + 1 - sta_n; ++k) pre += e[k];
+      for (std::size_t k = i + 1; k <= i + conf_n; ++k) conf += e[k];
+      const double lv = std::min(sta / static_cast<double>(sta_n), conf / static_cast<double>(conf_n)) / std::max(mean, pre / static_cast<double>(pre_n));
+      if (lv > level) {
+        level = lv;
+        level_t = static_cast<double>(i) / fs_d;
+      }
+    }
+  }
+  // The white-noise band power the spike stage implies: E[e] = noise_sd^2 x the chain's noise gain.
+  const double sd = 0.25 * std::pow(10.0, -c.snr_db / 20.0);
+  std::printf("detector band %.1f-%.1f Hz ratio %.2f, D %zu: noise-only band samples %zu, lta %.3g (white %.3g)\n",
+              d.band_lo_hz, d.band_hi_hz, d.trigger_ratio, D, count, det.lta(), sd * sd * det.band_noise_gain());
+  std::printf("share above 3x/5x/8x the stretch mean: %.2e %.2e %.2e (exponential %.2e %.2e %.2e)\n",
+              static_cast<double>(over3) / static_cast<double>(count), static_cast<double>(over5) / static_cast<double>(count),
+              static_cast<double>(over8) / static_cast<double>(count),
+              std::exp(-3.0), std::exp(-5.0), std::exp(-8.0));
+  std::printf("detector's band energy: noise alone reaches %.2fx its reference (at %.4f s); survey's FFT measure %.2fx\n", level,
+              level_t, s.noise_trigger_level);
+  (void)sum;
+  // The survey's FFT band envelope (brick-wall band, core/survey/band_envelope.hpp) on the same
+  // stretches: its mean energy against white noise's, bins x N x sd^2 (E|X[k]|^2 = N sd^2 per bin).
+  const ridgewatch::survey::RecordSpectrum spec(r.x, c.fs_hz);
+  double fe = 0;
+  const auto env = spec.envelope(d.band_lo_hz, d.band_hi_hz, 4.0, fe);
+  const double bins = std::ceil(d.band_hi_hz / spec.bin_hz()) - std::ceil(d.band_lo_hz / spec.bin_hz());
+  double fsum = 0;
+  std::size_t fn = 0;
+  for (const auto& [a_s, b_s] : st)
+    for (auto i = static_cast<std::size_t>(std::max(0.0, a_s) * fe); i < std::min(env.size(), static_cast<std::size_t>(std::max(0.0, b_s) * fe)); ++i) {
+      fsum += std::norm(env[i]);
+      ++fn;
+    }
+  std::printf("FFT band envelope on the same stretches: mean energy %.2fx white noise's (detector: %.2fx)\n",
+              fsum / static_cast<double>(fn) / (bins * static_cast<double>(r.x.size()) * sd * sd),
+              det.lta() / (sd * sd * det.band_noise_gain()));
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -166,6 +252,22 @@ int main(int argc, char** argv) {
   }
   if (mode == "controls") {
     return sweep_mode(0, SweepFilter{});  // no seeds per cell: only the 20 controls
+  }
+  if (mode == "noise" && argc >= 8) {
+    survey_cases::Case c;
+    c.fs_hz = std::atof(argv[2]);
+    c.f_hz = std::atof(argv[3]);
+    c.rate_hz = std::atof(argv[4]);
+    c.zeta = std::atof(argv[5]);
+    c.snr_db = std::atof(argv[6]);
+    c.seed = std::strtoull(argv[7], nullptr, 10);
+    for (int i = 8; i < argc; ++i) {
+      if (std::string(argv[i]) == "float") c.float32 = true;
+      if (std::string(argv[i]) == "wobble") c.wobble = true;
+    }
+    c.duration_s = std::max(6.0, 40.0 / c.rate_hz);
+    noise_mode(c);
+    return 0;
   }
   if (mode == "hammer" && argc >= 3) return hammer_mode(argv[2]);
   if (mode == "case" && argc >= 8) {

@@ -385,5 +385,42 @@ TEST(ImpactDetector, BandNoiseGainOfNarrowBands) {
   }
 }
 
+// trigger_noise_ratio (stage 4's noise floor): with trigger_ratio lowered to 3 (as the survey proposes
+// when decays fill the interval), a band that holds white noise only triggers on the noise's own
+// exponential tail (P(e > 3 x mean) = e^-3 per correlation time ~1/B = 8 ms: dozens in 5 s). With
+// the floor at 12 x the white-noise band power (P = e^-12 = 6e-6 per correlation time, 4e-3 in 5 s)
+// none; impacts that stand far above the noise (peak 100 x the noise sd, the band's energy ~1e4 x
+// its noise power) are all found, at the same onsets as without the floor.
+TEST(ImpactDetector, NoiseFloorKeepsBandNoiseFromALoweredTriggerRatio) {
+  Options o;
+  o.seconds = 5.0;
+  o.noise_sd = 0.005;
+  o.amplitude = 0.5;
+  ImpactDetectorConfig cfg;
+  cfg.trigger_ratio = 3.0;
+  const Signal noise = make(o);
+  {
+    ImpactDetector d(cfg, o.fs, 4096);
+    const auto got = detect(d, noise.x, 4096);
+    std::cout << "white noise only, trigger_ratio 3: " << got.size() << " events in 5 s\n";
+    EXPECT_GE(got.size(), 10u);  // the condition the floor is for (expected ~40)
+  }
+  cfg.trigger_noise_ratio = 12.0;
+  {
+    ImpactDetector d(cfg, o.fs, 4096);
+    EXPECT_TRUE(detect(d, noise.x, 4096).empty());
+  }
+  o.onset_s = {0.30, 1.10, 2.05, 3.30, 4.40};
+  const Signal impacts = make(o);
+  ImpactDetectorConfig plain;
+  plain.trigger_ratio = 3.0;
+  ImpactDetector d0(plain, o.fs, 4096), d1(cfg, o.fs, 4096);
+  const auto without = detect(d0, impacts.x, 4096);
+  const auto with = detect(d1, impacts.x, 4096);
+  // 0.1 ms: the onset accuracy of OnsetWithinTenthOfAMillisecondAtEveryBlockPosition.
+  expect_onsets(with, impacts.onsets, 0.0001 * o.fs, "noise floor 12");
+  EXPECT_GT(without.size(), impacts.onsets.size());  // the same record without the floor: noise events too
+}
+
 }  // namespace
 }  // namespace ridgewatch::pipeline

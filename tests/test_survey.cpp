@@ -231,6 +231,21 @@ TEST(SurveyProposal, SaysWhenBandNoiseAloneReachesTheLoweredTriggerRatio) {
   bool noted = false;
   for (const auto& n : res.proposal->notes) noted = noted || n.find("band noise alone reaches") != std::string::npos;
   EXPECT_TRUE(noted);
+  // The impacts cannot afford a ratio above 3 against the decay-filled LTA, so the noise-only
+  // stretches get the detector's noise floor instead (at least 12x the white-noise band power).
+  EXPECT_GE(res.proposal->detector.trigger_noise_ratio, 12.0);
+}
+
+TEST(SurveyAcceptance, NoFalseEventBeforeTheFirstImpactWithALoweredTriggerRatio) {
+  // The same record as above through `survey --write-config` and `analyze`: before the noise floor
+  // the band noise triggered at 0.094 s, the hold-off (96 ms) hid the first impact at 0.108 s: 39/40
+  // found and 1 false. With trigger_noise_ratio 12: 40/40, 0 false.
+  const survey_cases::Case c = survey_cases::sweep_case(854, 5, 0.002, 0, 27);
+  ASSERT_EQ(c.seed, 127u);
+  SCOPED_TRACE(survey_cases::describe(c));
+  survey_cases::Outcome o;
+  ASSERT_NO_FATAL_FAILURE(expect_proposed_and_found(c, "noise-floor", o));  // includes 0 false events
+  EXPECT_EQ(o.found, o.truth) << o.analyze_err;
 }
 #endif
 

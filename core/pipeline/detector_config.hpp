@@ -23,6 +23,12 @@ struct ImpactDetectorConfig {
   /// decay adds a phasor at random phase, which raises e only ~1.5-fold but makes an innovation of its
   /// own size. For decays that overlap the next impact (impact_detector.hpp, stage 3).
   bool trigger_innovation = false;
+  /// Noise floor of the trigger (0 = off, >= 0): the STA and the confirmation mean must also exceed
+  /// trigger_noise_ratio x the band power of white noise with the variance the spike stage measures
+  /// (impact_detector.hpp, stage 4). For a trigger_ratio lowered below the level band noise alone
+  /// reaches over its own mean (band envelope energy is exponentially distributed): stretches where the
+  /// band holds noise only are then judged at this ratio, stretches filled with decays at trigger_ratio.
+  double trigger_noise_ratio = 0.0;
 };
 
 }  // namespace ridgewatch::pipeline

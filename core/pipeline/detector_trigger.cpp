@@ -66,6 +66,9 @@ void ImpactDetector::decide_band_sample(std::uint64_t m, double e, double mad) {
     // Floored by the white-noise band power (the LTA may still be too low, see the LTA update).
     rise_ref = std::min(pre, std::max(lag / static_cast<double>(lagw_d_) * lag_decay_, white_band_power(mad)));
   }
+  // Noise floor (trigger_noise_ratio): the fast paths test without it; a trigger they pass is decided
+  // here, so it applies to every trigger and its confirmation.
+  if (noise_floor_ > 0.0) rise_ref = std::max(rise_ref, noise_floor_ * white_band_power(mad));
   if (startup_ && m >= startup_end_d_) startup_ = false;
   if (fires(band_.sta_sum, band_.lta, rise_ref)) {
     confirming_ = true;

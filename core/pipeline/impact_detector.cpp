@@ -16,6 +16,7 @@ namespace ridgewatch::pipeline {
 ImpactDetector::ImpactDetector(const ImpactDetectorConfig& cfg, double fs, std::size_t history_samples) {
   fs_ = fs;
   ratio_ = cfg.trigger_ratio;
+  noise_floor_ = cfg.trigger_noise_ratio > 0.0 ? cfg.trigger_noise_ratio / cfg.trigger_ratio : 0.0;
   spike_k_ = cfg.spike_mad;
   const double fc = 0.5 * (cfg.band_lo_hz + cfg.band_hi_hz);
   const double bw = 0.5 * (cfg.band_hi_hz - cfg.band_lo_hz);

@@ -125,6 +125,16 @@
 //     (floored at the white-noise band power): a decaying ring, of any damping down to a steady tone,
 //     stands at most exp(2 sigma_0 lag) = 7.2 times above it (lag 7.6 ms at the defaults), below the
 //     trigger ratio 8, while an impact rises from it 10-fold and more (the simulated first impacts).
+//     Noise floor (trigger_noise_ratio > 0; off by default): the reference is also at least
+//     trigger_noise_ratio / trigger_ratio x the white-noise band power the spike stage implies (its MAD
+//     as of the band sample's block, white_band_power()), so STA and confirmation must exceed
+//     trigger_noise_ratio x that power. Where the band holds noise only, its envelope energy is
+//     exponentially distributed (P(e > r x mean) = e^-r) and, in a band narrower than ~500 Hz, keeps
+//     its value longer than the 2 ms confirmation (correlation time ~1/B), so noise alone reaches
+//     several times its mean: 4.9x in 5 s of a 257 Hz band, more over longer streams. A ratio lowered
+//     for decays that fill the interval (their LTA far above the noise) then needs this floor where
+//     the band holds noise only (before the first impact). The decays themselves leave almost no
+//     interpolation residual (theta^4 / 6 of their amplitude), so the floor follows the noise, not them.
 //
 //  5. Onset: the trigger band's envelope is insensitive to the mesh lines but rises slowly (group
 //     delay of the low-pass ~ 2.6 / (2 pi B) = 3.3 ms at B = 125 Hz). Its response to a free decay
@@ -316,6 +326,7 @@ class ImpactDetector {
   // configuration (input samples unless named _d: decimated samples)
   double fs_ = 0, fs_d_ = 0;
   double ratio_ = 8;
+  double noise_floor_ = 0;              // trigger_noise_ratio / trigger_ratio (stage 4's noise floor), 0 = off
   double spike_k_ = 12;
   std::size_t dec_ = 1;                 // decimation factor D
   std::size_t blk_ = 1;                 // samples per spike-stage block (a multiple of D)

@@ -60,6 +60,8 @@ void validate(const PipelineConfig& c) {
   require(std::isfinite(d.lta_s) && d.lta_s > d.sta_s && d.lta_s <= 3600, "detector.lta_s",
           "must be > detector.sta_s = " + num(d.sta_s) + " and <= 3600", d.lta_s);
   require(std::isfinite(d.trigger_ratio) && d.trigger_ratio > 1, "detector.trigger_ratio", "must be > 1", d.trigger_ratio);
+  require(std::isfinite(d.trigger_noise_ratio) && d.trigger_noise_ratio >= 0, "detector.trigger_noise_ratio", "must be >= 0 (0: off)",
+          d.trigger_noise_ratio);
   require(std::isfinite(d.holdoff_s) && d.holdoff_s >= 0 && d.holdoff_s <= 60, "detector.holdoff_s",
           "must be in [0, 60]", d.holdoff_s);
   require(std::isfinite(d.spike_mad) && d.spike_mad > 0, "detector.spike_mad", "must be > 0", d.spike_mad);
