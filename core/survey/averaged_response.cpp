@@ -23,6 +23,7 @@ constexpr std::size_t kMaxWindow = 8192; // ... and the longest
 constexpr std::size_t kPad = 8;          // zero padding of the windows (bins for the peak's refinement)
 constexpr double kLineOverFloor = 10.0;  // a stationary line: P_R >= 10x the median around it ...
 constexpr double kLineRatio = 2.0;       // ... and P_E / P_R < 2 there (not the mode's own ringing tail)
+constexpr double kMinIntervalS = 0.02;  // shortest interval between impacts (identify_averaged_mode)
 constexpr double kMinCycles = 8.0;       // periods of f within the 2L window (identify_averaged_mode)
 constexpr double kMaxBeforeShare = 0.3;  // excess before the onset over the excess after it (a decay: ~0)
 
@@ -249,6 +250,13 @@ AveragedMode identify_averaged_mode(const RecordSpectrum& spectrum, std::span<co
   for (std::size_t j = 0; j < onset_s.size() && j < previous_s.size(); ++j) t_min = std::min(t_min, onset_s[j] - previous_s[j]);
   if (onset_s.size() < kMinImpacts || !(t_min > 0) || !(f_hi > f_lo)) {
     res.why = "too few impacts to average (" + std::to_string(onset_s.size()) + ", need " + std::to_string(kMinImpacts) + ")";
+    return res;
+  }
+  // Impacts closer than 20 ms leave windows (<= 1/6 of the interval) too short to tell a mode from a
+  // mesh line swept by the speed variation (teeth x the rate lies within a few of their bins;
+  // measured: a control without impacts, 119/s +-5 % wobble, 25 dB, "mode" at the 2618 Hz mesh line).
+  if (t_min < kMinIntervalS) {
+    res.why = "impacts " + fmt(t_min * 1e3) + " ms apart, under the " + fmt(kMinIntervalS * 1e3) + " ms the averaging needs";
     return res;
   }
   // The searched range's analytic envelope, shifted down by its first bin (band_envelope.cpp).
