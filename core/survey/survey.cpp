@@ -10,6 +10,7 @@
 
 #include "core/dsp/fftw_planner.hpp"
 #include "core/dsp/modes.hpp"
+#include "core/survey/averaged_response.hpp"
 #include "core/survey/band_envelope.hpp"
 
 namespace ridgewatch::survey {
@@ -920,6 +921,29 @@ bool focused_look(const std::vector<double>& x, double fs, const RecordSpectrum&
   return false;
 }
 
+// Step 4''': the ringing mode from spectra and band power averaged over the impacts
+// (averaged_response.hpp), for when no mode is ok in enough single free responses. Up to
+// max_segments impacts whose preceding interval is regular (the window before each impact lies in
+// it), spread over the record; the onset estimated half a band-envelope rise time (0.5/bw) before
+// the envelope's peak. Searched over the same range as the free responses.
+AveragedMode averaged_look(double fs, const RecordSpectrum& spectrum, const BandTrain& tr,
+                           double bw, const SurveyOptions& opt) {
+  std::vector<std::size_t> usable;
+  for (std::size_t j = 1; j < tr.impact_times_s.size(); ++j)
+    if (tr.next_regular[j - 1]) usable.push_back(j);
+  const std::size_t n = std::min(opt.max_segments, usable.size());
+  std::vector<double> onset, previous;
+  for (std::size_t s = 0; s < n; ++s) {
+    const std::size_t j = usable[(s * usable.size()) / n + (usable.size() / n) / 2];
+    onset.push_back(tr.impact_times_s[j] - 0.5 / bw);
+    previous.push_back(tr.impact_times_s[j - 1] - 0.5 / bw);
+  }
+  AveragedModeSearch search;
+  search.f_lo_hz = std::max(20.0, opt.f_min_hz);
+  search.f_hi_hz = std::min(0.45 * fs, opt.f_max_hz > 0 ? opt.f_max_hz : INFINITY);
+  return identify_averaged_mode(spectrum, onset, previous, search);
+}
+
 // Step 6: detector band f (1 +- rel), rel = 0.15 unless the innovation trigger needs more (propose()),
 // each edge pulled in halfway to the nearest line, at least f (1 +- 0.03), below 0.49 fs.
 void propose_detector_band(Proposal& p, double f, double fs, double line_below, double line_above,
@@ -1270,12 +1294,36 @@ bool survey_band(SurveyResult& res, const std::vector<double>& x, double fs, con
               " Hz: over the whole range the mode was ok in too few)";
   }
   res.segments_analysed = fr.analysed;
-  const bool have_mode = enough(res.modes, fr.analysed);
-  v.check(have_mode, have_mode ? "a decaying mode at " + fmt(res.modes[0].f_hz, 5) + " Hz (zeta " + fmt(res.modes[0].zeta) +
-                                     ") in " + std::to_string(res.modes[0].segments) + " of " +
-                                     std::to_string(res.segments_analysed) + " free responses after the impacts" + focused
-                               : "no decaying mode common to >= " + fmt(100 * min_fraction) + " % (and >= 3) of the " +
-                                     std::to_string(res.segments_analysed) + " free responses after the bursts");
+  bool have_mode = enough(res.modes, fr.analysed);
+  // Step 4''': averages over the impacts, only once the train has passed its tests (its impacts are
+  // then impacts, not the band's noise maxima, which would raise the power after them by selection).
+  std::string averaged;
+  if (!have_mode && tr.train()) {
+    const AveragedMode am = averaged_look(fs, spectrum, tr, bw, opt);
+    if (am.found) {
+      ModeCluster mc;
+      mc.f_hz = am.f_hz;
+      mc.zeta = am.zeta;
+      mc.averaged_over = am.impacts;
+      res.modes = {mc};
+      have_mode = true;
+      averaged = "a decaying mode at " + fmt(am.f_hz, 5) + " Hz (zeta " + fmt(am.zeta) +
+                 ", a first value from the averaged band power's decay) in the power spectrum averaged over " +
+                 std::to_string(am.impacts) + " impacts: " + fmt(am.ratio) + "x the power before them (need >= " +
+                 fmt(am.ratio_needed) + "x: false-alarm probability 1e-3 over " + std::to_string(am.tests) +
+                 " tests); ok in too few of the " + std::to_string(fr.analysed) + " single free responses";
+    } else {
+      averaged = "; averaged over the impacts: " + am.why;
+    }
+  }
+  if (have_mode && !averaged.empty())
+    v.check(true, averaged);
+  else
+    v.check(have_mode, have_mode ? "a decaying mode at " + fmt(res.modes[0].f_hz, 5) + " Hz (zeta " + fmt(res.modes[0].zeta) +
+                                       ") in " + std::to_string(res.modes[0].segments) + " of " +
+                                       std::to_string(res.segments_analysed) + " free responses after the impacts" + focused
+                                 : "no decaying mode common to >= " + fmt(100 * min_fraction) + " % (and >= 3) of the " +
+                                       std::to_string(res.segments_analysed) + " free responses after the bursts" + averaged);
   // Second look, in the band of the ringing mode itself (the proposal's detector band, +-15 %), when
   // the kurtogram band's train failed: that band can hold onset clicks or a mode's far skirt whose
   // peaks are less regular than the ringing (measured: a 300 Hz mode seen through 344-459 Hz at 10 dB,

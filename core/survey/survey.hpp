@@ -37,7 +37,12 @@
 //     the segments are listed as further modes. When no cluster is ok in half of them, the search is
 //     repeated for up to three candidates (modes detected whatever their status) in the candidate's
 //     band f (1 +- 0.15), kept clear of stationary lines, with tau from that band's power and eta0
-//     raised against the lines' leakage (focused_look in survey.cpp).
+//     raised against the lines' leakage (focused_look in survey.cpp). When the train passes its tests
+//     and still no mode is ok in enough free responses (a decay of 1-2 ms at 10 dB stands only 6-9 dB
+//     over the noise in one), the mode is identified from quantities averaged over up to 24 impacts
+//     (step 4''', averaged_response.hpp): the peak of the power just after the impacts over the
+//     power just before them, with its own significance test (an F test on the N-averages at a
+//     family-wise false-alarm probability of 1e-3), and zeta from the averaged band power's decay.
 //  5. Decision "repeated impacts": all of SK z >= 8 (a burst band, not noise or lines), r(T) >= 0.2
 //     (periodic bursts), contrast >= 10 (bursts stand 10 dB above the floor), >= 4 impacts with
 //     >= 75 % of the intervals regular, and the ringing mode in >= half of the analysed segments (a
@@ -91,6 +96,10 @@ struct ModeCluster {
   double zeta_q1 = NAN, zeta_q3 = NAN;
   double amplitude = NAN;      ///< median amplitude at the segment start, signal units
   std::size_t segments = 0;    ///< segments with an ok mode in the cluster
+  /// > 0: identified from the spectra and band power averaged over this many impacts (step 4''',
+  /// core/survey/averaged_response.hpp), not in single free responses (then segments is 0,
+  /// amplitude and the zeta quartiles NaN, and zeta a first value from the averaged decay).
+  std::size_t averaged_over = 0;
   /// Morlet eta0 that reads this mode apart from the other modes listed (step 4'); may exceed the
   /// analyzer's maximum 50 (then the analyzer cannot separate them).
   double eta0_needed = NAN;
