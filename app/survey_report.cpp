@@ -67,7 +67,7 @@ json to_json(const survey::SurveyResult& r, const std::string& name) {
   json modes = json::array();
   for (const auto& m : r.modes)
     modes.push_back({{"f_hz", num(m.f_hz)}, {"zeta", num(m.zeta)}, {"zeta_quartiles", {num(m.zeta_q1), num(m.zeta_q3)}},
-                     {"amplitude", num(m.amplitude)}, {"segments", m.segments}, {"eta0_needed", num(m.eta0_needed)}});
+                     {"amplitude", num(m.amplitude)}, {"segments", m.segments}, {"averaged_over", m.averaged_over}, {"eta0_needed", num(m.eta0_needed)}});
   j["modes"] = modes;
   j["segments_analysed"] = r.segments_analysed;
   j["decay_left_at_next_impact"] = num(r.decay_per_period);
@@ -102,10 +102,15 @@ std::string text_report(const survey::SurveyResult& r, const std::string& name) 
     if (std::isfinite(r.shaft_order)) o << ", " << f3(r.shaft_order, 3) << " x the pinion shaft speed";
     o << "\n";
   }
-  for (std::size_t i = 0; i < r.modes.size(); ++i)
-    o << (i == 0 ? "ringing mode: " : "further mode: ") << f3(r.modes[i].f_hz, 6) << " Hz, zeta " << f3(r.modes[i].zeta, 3)
-      << " (quartiles " << f3(r.modes[i].zeta_q1, 3) << " .. " << f3(r.modes[i].zeta_q3, 3) << "), in "
-      << r.modes[i].segments << " of " << r.segments_analysed << " free responses\n";
+  for (std::size_t i = 0; i < r.modes.size(); ++i) {
+    const auto& m = r.modes[i];
+    o << (i == 0 ? "ringing mode: " : "further mode: ") << f3(m.f_hz, 6) << " Hz, zeta " << f3(m.zeta, 3);
+    if (m.averaged_over > 0)  // no single free response holds it: a first zeta from the averaged decay
+      o << ", from the spectra and band power averaged over " << m.averaged_over << " impacts\n";
+    else
+      o << " (quartiles " << f3(m.zeta_q1, 3) << " .. " << f3(m.zeta_q3, 3) << "), in " << m.segments << " of "
+        << r.segments_analysed << " free responses\n";
+  }
   o << "evidence:\n";
   for (const auto& e : r.evidence) o << "  " << e << "\n";
   if (!r.impacts_found) {
