@@ -130,21 +130,9 @@ int main(int argc, char** argv) {
   const std::string mode = argc > 1 ? argv[1] : "";
   Totals t;
   if (mode == "case" && argc >= 8) {
-    survey_cases::Case c;
-    c.fs_hz = std::atof(argv[2]);
-    c.f_hz = std::atof(argv[3]);
-    c.rate_hz = std::atof(argv[4]);
-    c.zeta = std::atof(argv[5]);
-    c.snr_db = std::atof(argv[6]);
-    c.seed = std::strtoull(argv[7], nullptr, 10);
+    const survey_cases::Case c = survey_cases::case_from_args(argc, argv);
     bool verbose = false;
-    for (int i = 8; i < argc; ++i) {
-      const std::string a = argv[i];
-      c.float32 |= a == "float";
-      c.wobble |= a == "wobble";
-      verbose |= a == "-v";
-    }
-    c.duration_s = std::max(6.0, 40.0 / c.rate_hz);
+    for (int k = 8; k < argc; ++k) verbose |= std::string(argv[k]) == "-v";
     print(c, run_record(c, tag_of(c), verbose), t);
     return 0;
   }

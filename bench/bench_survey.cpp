@@ -254,37 +254,12 @@ int main(int argc, char** argv) {
     return sweep_mode(0, SweepFilter{});  // no seeds per cell: only the 20 controls
   }
   if (mode == "noise" && argc >= 8) {
-    survey_cases::Case c;
-    c.fs_hz = std::atof(argv[2]);
-    c.f_hz = std::atof(argv[3]);
-    c.rate_hz = std::atof(argv[4]);
-    c.zeta = std::atof(argv[5]);
-    c.snr_db = std::atof(argv[6]);
-    c.seed = std::strtoull(argv[7], nullptr, 10);
-    for (int i = 8; i < argc; ++i) {
-      if (std::string(argv[i]) == "float") c.float32 = true;
-      if (std::string(argv[i]) == "wobble") c.wobble = true;
-    }
-    c.duration_s = std::max(6.0, 40.0 / c.rate_hz);
-    noise_mode(c);
+    noise_mode(survey_cases::case_from_args(argc, argv));
     return 0;
   }
   if (mode == "hammer" && argc >= 3) return hammer_mode(argv[2]);
   if (mode == "case" && argc >= 8) {
-    survey_cases::Case c;
-    c.fs_hz = std::atof(argv[2]);
-    c.f_hz = std::atof(argv[3]);
-    c.rate_hz = std::atof(argv[4]);
-    c.zeta = std::atof(argv[5]);
-    c.snr_db = std::atof(argv[6]);
-    c.seed = std::strtoull(argv[7], nullptr, 10);
-    for (int i = 8; i < argc; ++i) {
-      if (std::string(argv[i]) == "float") c.float32 = true;
-      if (std::string(argv[i]) == "wobble") c.wobble = true;
-      if (std::string(argv[i]) == "none") c.impacts = false;
-      if (std::string(argv[i]).rfind("teeth=", 0) == 0) c.teeth = std::atoi(argv[i] + 6);
-    }
-    c.duration_s = std::max(6.0, 40.0 / c.rate_hz);
+    const survey_cases::Case c = survey_cases::case_from_args(argc, argv);
     const std::string dir = std::filesystem::temp_directory_path() / ("bench_survey-" + std::to_string(getpid()));
     std::filesystem::create_directories(dir);
     const auto o = survey_cases::run_case(c, dir);

@@ -10,6 +10,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <sstream>
 #include <string>
@@ -190,6 +191,27 @@ inline HammerRecord write_hammer_record(const std::string& hit_wav, const std::s
 // The sweep's n-th record (0-based over all cases, s the seed index within its cell): sample rate,
 // SNR, format and speed wobble rotate with n so every combination of them is visited; the record
 // holds at least 40 impacts and 6 s.
+/// The record of a bench command line `MODE FS F RATE ZETA SNR SEED [float] [wobble] [none] [teeth=N]`
+/// (argv[2..7], then flags in any order; other words are left to the caller), as long as the sweep's.
+inline Case case_from_args(int argc, char** argv) {
+  Case c;
+  c.fs_hz = std::atof(argv[2]);
+  c.f_hz = std::atof(argv[3]);
+  c.rate_hz = std::atof(argv[4]);
+  c.zeta = std::atof(argv[5]);
+  c.snr_db = std::atof(argv[6]);
+  c.seed = std::strtoull(argv[7], nullptr, 10);
+  for (int i = 8; i < argc; ++i) {
+    const std::string a = argv[i];
+    c.float32 |= a == "float";
+    c.wobble |= a == "wobble";
+    if (a == "none") c.impacts = false;
+    if (a.rfind("teeth=", 0) == 0) c.teeth = std::atoi(a.c_str() + 6);
+  }
+  c.duration_s = std::max(6.0, 40.0 / c.rate_hz);
+  return c;
+}
+
 inline Case sweep_case(double f_hz, double rate_hz, double zeta, int s, int n) {
   const double rates_fs[] = {25600, 44100, 48000, 51200};
   const double snrs[] = {10, 25, 40};
