@@ -87,6 +87,7 @@ TEST(IndependentGenerator, ImpactRateAndRingingFrequencyMatchThePaperRig) {
   EXPECT_NEAR(f, 859.9, 1.0);  // 1 Hz: linear interpolation of crossings at 30 samples per cycle
 }
 
+#ifndef RIDGEWATCH_SANITIZED  // a whole diagnose run: 13 s optimised, ~440 s under the sanitizers (the contact-loss and step cases below keep the path there)
 // Issue 14: stiffness variation whose only evidence is the modulation of each free decay (no static
 // load lines) was missed ("none"). Now found by its own name.
 TEST(DiagnoseIndependent, MeshVariationWithoutLoadLinesIsFound) {
@@ -103,6 +104,7 @@ TEST(DiagnoseIndependent, MeshVariationWithoutLoadLinesIsFound) {
     }
   }
 }
+#endif
 
 #ifndef RIDGEWATCH_SANITIZED
 // A model with a mesh-periodic effect keeps the impact pulse length at the rig's value during the
