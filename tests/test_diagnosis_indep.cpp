@@ -32,7 +32,8 @@ rm::RigParameters paper_rig(double load = 200.0) {
   return rig;
 }
 
-rd::DiagnoseResult run(const std::vector<double>& y, const rm::RigParameters& rig) {
+// (every caller is a whole diagnose run, which the sanitizer pass leaves out: maybe unused there)
+[[maybe_unused]] rd::DiagnoseResult run(const std::vector<double>& y, const rm::RigParameters& rig) {
   const auto seg = rd::subset_windows(rd::segment_recording(y, kRate, rig), 16);
   EXPECT_GE(seg.windows.size(), 14u);
   const rd::ModelFitter fitter(y, seg, rig);
