@@ -77,7 +77,7 @@ void ImpactDetector::design_band(double fc, double bw) {
     if (c->b1 != 2.0 * c->b0 || c->b2 != c->b0) throw std::logic_error("ImpactDetector: low-pass numerator not (1, 2, 1) b0");
 }
 
-void ImpactDetector::measure_fill_up(double bw) {
+void ImpactDetector::measure_fill_up(double bw, std::vector<std::complex<double>>& responses) {
   // Noise gain and fill-up of the whole chain for white input: the squared responses of the band
   // samples to a unit impulse at each of the D positions of a block, S[m] summed over the
   // positions. E[e] after m band samples of a segment = sum_{j <= m} S[j] (impulses in later blocks
@@ -89,11 +89,13 @@ void ImpactDetector::measure_fill_up(double bw) {
   const std::size_t n_out = static_cast<std::size_t>(std::ceil(sum_s * fs_d_)) + 8;
   std::vector<double> s(n_out, 0.0), x(n_out * dec_, 0.0);
   std::vector<std::complex<double>> y;
+  responses.assign(dec_ * n_out, {});  // kept for measure_lag_correlation()
   for (std::size_t p = 0; p < dec_; ++p) {
     if (p > 0) x[p - 1] = 0.0;  // the previous position's impulse
     x[p] = 1.0;
     run_chain(x, y);
     for (std::size_t m = 0; m < n_out; ++m) s[m] += std::norm(y[m]);
+    std::copy(y.begin(), y.begin() + static_cast<std::ptrdiff_t>(n_out), responses.begin() + static_cast<std::ptrdiff_t>(p * n_out));
   }
   band_noise_gain_ = 0.0;
   for (double v : s) band_noise_gain_ += v;
@@ -261,6 +263,7 @@ void ImpactDetector::band_blocks(std::uint64_t b, std::size_t count) {
           kernels::iq_lowpass4_step(lp, s.lp, dsp::simd::f64x2{static_cast<double>(z_re_[j]), static_cast<double>(z_im_[j])});
       double e = y[0] * y[0] + y[1] * y[1];
       if (innov_) e = innovation(s, {y[0], y[1]}, e);
+      else z_hist_[s.m & e_mask_] = {y[0], y[1]};  // for ringing_free_noise_power()
       const std::size_t sub = sub_of_[j0 + j];
       if (!(fast ? band_sample_steady(s, e) : band_sample_general(s, e, sub))) continue;
       fast = false;

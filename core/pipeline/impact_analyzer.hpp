@@ -96,7 +96,9 @@
 // the next impact (the detector in innovation mode) that power holds the previous impact's ringing
 // (12-16 dB over the noise at 854 Hz, 25 / s, zeta 0.002), which made every event after the first
 // low_snr. The caller then also gives the innovation's power over the same span (the band envelope
-// minus the ringing's one-pole continuation: ImpactDetector::innovation_noise_power), and the analysis
+// minus the ringing's one-pole continuation: ImpactDetector::innovation_noise_power; with the energy
+// trigger the same continuation at the pole of the earlier events' mode,
+// ImpactDetector::ringing_free_noise_power), and the analysis
 // uses it (the smaller of the two) when the window after the onset holds at least 9 DFT bins of the
 // ML fit band, T * 2 ml_band_rel f_expected >= 9 (StreamProcessor's rule for the shortest decay
 // window). The ringing itself does not bias zeta: the
@@ -145,8 +147,9 @@ struct ImpactWindow {
   std::size_t onset_offset = 0;     ///< index of the onset inside `samples`
   WindowEnd end = WindowEnd::complete;
   double noise_var = NAN;           ///< white-equivalent noise variance of the samples (from the gaps)
-  /// Innovation mode (detector.trigger_innovation): the same without the previous impacts' ringing
-  /// (StreamProcessor; header comment, "Noise"); NaN otherwise.
+  /// The same without the previous impacts' ringing (StreamProcessor: the innovation's power with
+  /// detector.trigger_innovation, else the ringing of the earlier events' mode removed; header
+  /// comment, "Noise"); NaN before any measurement.
   double innovation_noise_var = NAN;
   bool spike = false;               ///< a detected spike lies inside the window
   std::uint64_t onset_index = 0;    ///< absolute onset index (event sample_index)

@@ -35,15 +35,16 @@ ImpactDetector::ImpactDetector(const ImpactDetectorConfig& cfg, double fs, std::
   run_ = subs_ * blk_;
   design_band(fc, bw);     // stage 2's FIR, phasors and low-pass (detector_band.cpp)
   set_windows(cfg, bw);    // stage 3-4 windows in band samples, time constants
-  measure_fill_up(bw);     // noise gain and fill-up of the chain (detector_band.cpp)
+  std::vector<std::complex<double>> responses;  // the chain's impulse responses (measure_fill_up())
+  measure_fill_up(bw, responses);  // noise gain and fill-up of the chain (detector_band.cpp)
   set_onset_timing(fc);    // stage 5's model and the report delay (detector_onset.cpp)
+  fc_hz_ = fc;
   innov_ = cfg.trigger_innovation;
-  if (innov_) {
-    // Innovation lag k: the model's peak time + 1 ms (stage 3, innovation mode).
-    innov_lag_d_ = std::max<std::size_t>(1, static_cast<std::size_t>(std::ceil((peak_samples_ + 0.001 * fs_) / static_cast<double>(dec_))));
-    freeze_extra_d_ = 2 * innov_lag_d_;
-    measure_lag_correlation(bw);
-  }
+  // Innovation lag k: the model's peak time + 1 ms (stage 3, innovation mode; in both modes the lag of
+  // ringing_free_noise_power()).
+  innov_lag_d_ = std::max<std::size_t>(1, static_cast<std::size_t>(std::ceil((peak_samples_ + 0.001 * fs_) / static_cast<double>(dec_))));
+  if (innov_) freeze_extra_d_ = 2 * innov_lag_d_;
+  measure_lag_correlation(responses);
   allocate(history_samples);
   restart(0);
 }
@@ -74,7 +75,7 @@ void ImpactDetector::allocate(std::size_t history_samples) {
   e_hist_.assign(esize, 0.0);
   e_mask_ = esize - 1;
   q_hist_.assign(innov_ ? esize : 0, 0.0);
-  z_hist_.assign(innov_ ? esize : 0, std::complex<double>{});
+  z_hist_.assign(esize, std::complex<double>{});
   th_ = innov_ ? q_hist_.data() : e_hist_.data();
   hist_ = taps_ + 8;
   // Room for 16 runs after the history, the run in progress with its spike delay, and slack: finish()
@@ -212,20 +213,36 @@ double ImpactDetector::innovation_noise_power(std::uint64_t begin, std::uint64_t
   return history_power(q_hist_, begin, end) / std::max(gain, 1e-3);
 }
 
-void ImpactDetector::measure_lag_correlation(double bw) {
+double ImpactDetector::ringing_free_noise_power(std::uint64_t begin, std::uint64_t end, double f_hz,
+                                                double zeta) const {
+  if (!(zeta > 0.0 && zeta < 1.0) || !(std::abs(f_hz - fc_hz_) < 0.5 * fs_d_)) return NAN;
+  // The free decay x = A e^{-sigma t} cos(w t + phi) leaves the band as z[m] = c a^m, a =
+  // e^{(-sigma + i (w - w_c)) D / fs} (the FIR passes e^{+i w n}, z is demodulated by e^{-i w_c D m};
+  // the low-pass keeps an exponential an exponential), so z[m] = a^k z[m - k] and p = a^k.
+  const double w = 2.0 * std::numbers::pi * f_hz;
+  const double sigma = zeta * w / std::sqrt(1.0 - zeta * zeta);
+  const double lag_s = static_cast<double>(innov_lag_d_ * dec_) / fs_;
+  const std::complex<double> p = std::polar(std::exp(-sigma * lag_s), (w - 2.0 * std::numbers::pi * fc_hz_) * lag_s);
+  const double gain = std::max(1.0 + std::norm(p) - 2.0 * (std::conj(p) * innov_rho_).real(), 1e-3);
+  const std::uint64_t k = innov_lag_d_;
+  auto q = [&](std::uint64_t m) {
+    // Before the segment's first k band samples there is no z[m - k]: the band power stands in.
+    if (m < k) return gain * e_hist_[m & e_mask_];
+    return std::norm(z_hist_[m & e_mask_] - p * z_hist_[(m - k) & e_mask_]);
+  };
+  return history_average(q, begin, end) / gain;
+}
+
+void ImpactDetector::measure_lag_correlation(const std::vector<std::complex<double>>& responses) {
   // E[n[m] conj(n[m - k])] of the band output for white input: the impulse responses' lag products
-  // summed over the D positions of a block (as measure_fill_up() sums their powers), over the same span.
-  const double sum_s = std::max(0.25, 3.0 / bw);
-  const std::size_t n_out = static_cast<std::size_t>(std::ceil(sum_s * fs_d_)) + 8 + innov_lag_d_;
-  std::vector<double> x(n_out * dec_, 0.0);
-  std::vector<std::complex<double>> y;
+  // summed over the D positions of a block (as measure_fill_up() sums their powers, from the same
+  // responses: past their span they are below 1e-6 of the peak power).
+  const std::size_t n_out = responses.size() / dec_;
   std::complex<double> lag{0.0, 0.0};
   double power = 0.0;
   for (std::size_t p = 0; p < dec_; ++p) {
-    std::fill(x.begin(), x.end(), 0.0);
-    x[p] = 1.0;
-    run_chain(x, y);
-    for (std::size_t m = 0; m < y.size(); ++m) {
+    const std::complex<double>* y = responses.data() + p * n_out;
+    for (std::size_t m = 0; m < n_out; ++m) {
       power += std::norm(y[m]);
       if (m >= innov_lag_d_) lag += y[m] * std::conj(y[m - innov_lag_d_]);
     }
@@ -234,6 +251,11 @@ void ImpactDetector::measure_lag_correlation(double bw) {
 }
 
 double ImpactDetector::history_power(const std::vector<double>& hist, std::uint64_t begin, std::uint64_t end) const {
+  return history_average([&](std::uint64_t m) { return hist[m & e_mask_]; }, begin, end);
+}
+
+template <class Value>
+double ImpactDetector::history_average(const Value& value, std::uint64_t begin, std::uint64_t end) const {
   // Time average over [begin, end) of e, linearly interpolated between the band samples. Interpolating
   // matters: the in-band floor between impacts often holds the residuals of two lines (a beat in e at their difference frequency, e.g.
   // 440 Hz for 660/1100 Hz lines), which a plain mean of the few band samples in a 2 ms window
@@ -258,15 +280,15 @@ double ImpactDetector::history_power(const std::vector<double>& hist, std::uint6
   auto at = [&](double u) {
     const auto k = static_cast<std::uint64_t>(u);
     const double f = u - static_cast<double>(k);
-    const double a = hist[k & e_mask_];
-    return f > 0.0 ? a + f * (hist[(k + 1) & e_mask_] - a) : a;
+    const double a = value(k);
+    return f > 0.0 ? a + f * (value(k + 1) - a) : a;
   };
   // Trapezoids: partial first and last intervals, whole ones between.
   const double k0 = std::ceil(u0), k1 = std::floor(u1);
   if (k0 > k1) return 0.5 * (at(u0) + at(u1));
   double area = 0.5 * (at(u0) + at(k0)) * (k0 - u0) + 0.5 * (at(k1) + at(u1)) * (u1 - k1);
   for (auto k = static_cast<std::uint64_t>(k0); k < static_cast<std::uint64_t>(k1); ++k)
-    area += 0.5 * (hist[k & e_mask_] + hist[(k + 1) & e_mask_]);
+    area += 0.5 * (value(k) + value(k + 1));
   return area / (u1 - u0);
 }
 

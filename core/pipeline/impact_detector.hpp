@@ -217,6 +217,14 @@ class ImpactDetector {
   /// noise (and what the one-pole prediction does not follow: lines, other modes) where band_power()
   /// holds the previous impact's ringing. NaN in energy mode or where band_power() is NaN.
   double innovation_noise_power(std::uint64_t begin, std::uint64_t end) const;
+  /// Either mode: the band's noise power over [begin, end) without the ringing of a known mode, the
+  /// time average of q = |z[m] - p z[m - k]|^2 with the predictor p = exp(k D (-sigma + i (w - w_c)) /
+  /// fs) of a free decay at f_hz with damping ratio zeta (w = 2 pi f_hz, sigma = zeta w / sqrt(1 -
+  /// zeta^2), w_c the band's centre: z's demodulation), divided by q's white-noise gain relative to e
+  /// (as innovation_noise_power()). For decays that overlap less than the innovation trigger needs
+  /// (energy mode): the pole comes from the analysis of earlier impacts, which all ring in the same
+  /// mode. NaN for a pole outside the band or where band_power() is NaN.
+  double ringing_free_noise_power(std::uint64_t begin, std::uint64_t end, double f_hz, double zeta) const;
   bool innovation_mode() const { return innov_; }
   /// Robust noise floor: LTA (bias-corrected) of the band power (with trigger_innovation: of the
   /// innovation energy, the trigger statistic, which for noise alone is the band power).
@@ -281,7 +289,7 @@ class ImpactDetector {
   // construction steps (impact_detector.cpp, detector_band.cpp, detector_onset.cpp)
   void design_band(double fc_hz, double bw_hz);
   void set_windows(const ImpactDetectorConfig& cfg, double bw_hz);
-  void measure_fill_up(double bw_hz);
+  void measure_fill_up(double bw_hz, std::vector<std::complex<double>>& responses);
   void set_onset_timing(double fc_hz);
   void allocate(std::size_t history_samples);
 
@@ -314,7 +322,10 @@ class ImpactDetector {
   double white_band_power(double mad) const;
   /// Time average over [begin, end) of a band-sample history (e_hist_ or q_hist_): band_power()'s rule.
   double history_power(const std::vector<double>& hist, std::uint64_t begin, std::uint64_t end) const;
-  void measure_lag_correlation(double bw_hz);  // innov_rho_ from the chain's impulse responses
+  /// The same time average of any per-band-sample value, value(m) for band sample m.
+  template <class Value>
+  double history_average(const Value& value, std::uint64_t begin, std::uint64_t end) const;
+  void measure_lag_correlation(const std::vector<std::complex<double>>& responses);  // innov_rho_ at lag k
   void note_scale(std::size_t k);  // keeps the spike stage's scale after block k of a run
   void start_run_scale();          // fixes the winsorisation limit of the run's blocks
   /// Winsorisation limit 3 mean |r| of the scale update: as of the start of the run once the scale is
@@ -327,6 +338,7 @@ class ImpactDetector {
   double fs_ = 0, fs_d_ = 0;
   double ratio_ = 8;
   double noise_floor_ = 0;              // trigger_noise_ratio / trigger_ratio (stage 4's noise floor), 0 = off
+  double fc_hz_ = 0;                    // centre of the trigger band (z's demodulation frequency), Hz
   double spike_k_ = 12;
   std::size_t dec_ = 1;                 // decimation factor D
   std::size_t blk_ = 1;                 // samples per spike-stage block (a multiple of D)
@@ -377,8 +389,8 @@ class ImpactDetector {
 
   std::vector<double> e_hist_;   // trigger-band power history, by decimated index & mask
   // Innovation mode (stage 3): the trigger statistic's history (q; e_hist_ itself in energy mode),
-  // the band's complex envelope z by decimated index & mask, the lag k, and the running
-  // least-squares sums of the predictor p = c / w.
+  // the running least-squares sums of the predictor p = c / w. Both modes: the band's complex
+  // envelope z by decimated index & mask and the lag k (ringing_free_noise_power()).
   double* th_ = nullptr;
   bool innov_ = false;
   std::vector<double> q_hist_;

@@ -135,7 +135,7 @@ struct StreamProcessor::Impl {
     std::uint64_t onset;
     double noise_var;              // from the band power between impacts: the decay-following floor
     bool noise_measured = false;   // noise_var from pre-trigger samples (else the LTA's stand-in)
-    double innovation_noise_var;   // innovation mode: the noise without the ringing (NaN otherwise)
+    double innovation_noise_var;   // the noise without the ringing (NaN before any measurement)
     std::uint64_t checked = 0;     // end of the next step to check (0: not started)
     double peak_power = NAN;       // trigger-band power at the envelope's peak
     std::uint64_t decay_end = 0;   // where the decay reached the floor (0: not yet)
@@ -161,7 +161,9 @@ struct StreamProcessor::Impl {
     }
   };
   NoiseHistory noise_hist;   // band power
-  NoiseHistory innov_hist;   // innovation mode: the innovation's noise power
+  NoiseHistory innov_hist;   // the noise power without the ringing (innovation_noise_for())
+  NoiseHistory mode_f_hist, mode_zeta_hist;  // f and zeta of the last analysed impacts (energy mode)
+  double mode_f = NAN, mode_zeta = NAN;       // ... their medians
   bool noise_measured = false;  // the last noise_for() had pre-trigger measurements
 
   std::uint64_t samples = 0, impacts = 0, gaps = 0;
@@ -290,13 +292,21 @@ struct StreamProcessor::Impl {
   // without the previous impact's ringing, which the band power between impacts holds (12-16 dB over
   // the noise at 854 Hz, 25 / s, zeta 0.002): the innovation's power there
   // (ImpactDetector::innovation_noise_power), median of the last 8 like noise_for(), as a white-noise
-  // variance. NaN in energy mode or before any measurement. The analyzer decides whether to use it
+  // variance. NaN before any measurement. The analyzer decides whether to use it
   // (ImpactWindow::innovation_noise_var).
+  //
+  // Energy mode (decays that overlap less, e.g. 11 % left at 854 Hz, 25 / s, zeta 0.01, where the band
+  // power between impacts still held the ringing 13-15 dB over the noise and made every event
+  // low_snr): the same span's power without the ringing of the mode the earlier impacts were analysed
+  // at (ImpactDetector::ringing_free_noise_power; the medians of the last 8 estimates' f and zeta), NaN
+  // before any.
   double innovation_noise_for(std::uint64_t onset) {
-    if (!detector.innovation_mode()) return NAN;
     std::uint64_t begin = 0, end = 0;
     noise_span_before(onset, begin, end);
-    const double p = detector.innovation_noise_power(begin, end);
+    double p = NAN;
+    if (detector.innovation_mode()) p = detector.innovation_noise_power(begin, end);
+    else if (std::isfinite(mode_f)) p = detector.ringing_free_noise_power(begin, end, mode_f, mode_zeta);
+    else return NAN;
     if (std::isfinite(p)) innov_hist.add(p);
     return innov_hist.count > 0 ? innov_hist.median() / detector.band_noise_gain() : NAN;
   }
@@ -428,6 +438,12 @@ struct StreamProcessor::Impl {
     win.onset_index = o;
     ImpactEvent ev = analyzer_for(static_cast<std::size_t>(end - o)).analyze(win);
     ev.window_end_index = end;
+    if (std::isfinite(ev.f_hz) && ev.zeta > 0 && ev.zeta < 0.5) {
+      mode_f_hist.add(ev.f_hz);
+      mode_zeta_hist.add(ev.zeta);
+      mode_f = mode_f_hist.median();
+      mode_zeta = mode_zeta_hist.median();
+    }
     ev.alarm = trend_monitor.update(ev.zeta, ev.status == ImpactStatus::ok);
     events.push_back(ev);
   }
