@@ -625,10 +625,12 @@ int coverage(const std::string& which, int seeds, double force_n) {
           const double sd0 = std::sqrt(std::max(0.0, e.sd * e.sd - e.offset_var));
           const double r = e.sd > 0.0 ? sd0 / e.sd : 1.0;
           const double lo0 = e.value - r * (e.value - e.ci95_lo), hi0 = e.value + r * (e.ci95_hi - e.value);
-          covered0[k] += lo0 <= truths[k].second && truths[k].second <= hi0;
+          const bool in0 = lo0 <= truths[k].second && truths[k].second <= hi0;
+          covered0[k] += in0;
           const double z0 = (e.value - truths[k].second) / std::max(sd0, 1e-300);
           z2_0[k] += z0 * z0;
-          std::printf(" %.5g (%.5g .. %.5g)%s |", e.value, e.ci95_lo, e.ci95_hi, in ? "" : " MISS");
+          std::printf(" %.5g (%.5g .. %.5g)%s%s |", e.value, e.ci95_lo, e.ci95_hi, in ? "" : " MISS",
+                      in0 ? "" : (in ? " (missed without the offset term)" : ""));
         }
     std::printf("\n");
     std::fflush(stdout);

@@ -54,7 +54,8 @@ struct FitParams {
   double polarity = 1.0;
   /// Per window (empty: all zero): a static offset (m) of the mesh deflection at the start of a window
   /// without a predecessor, where the window model otherwise starts at rest at x = 0. Never fitted:
-  /// set only to propagate the unknown held offset of dry friction into the intervals (fit()).
+  /// set only to propagate the unknown held offset of dry friction into the intervals (the
+  /// uncertainties above).
   std::vector<double> start_offset_m;
   /// Impact pulse shape (not fitted by LM: a choice, ModelFitter::set_pulse_shape and
   /// fit_pulse_shapes below).
@@ -65,7 +66,8 @@ struct ParameterEstimate {
   std::string name;
   double value = 0.0;
   double sd = 0.0;               ///< delta-method standard deviation of the value
-  /// Part of sd² from the unknown held start offset of dry friction (value units², see fit()); 0 otherwise.
+  /// Part of sd² (value units²) from the unknown held start offset of dry friction (the uncertainties
+  /// above); 0 without dry friction. sd² - offset_var is the s² (JᵀJ)⁻¹ part alone.
   double offset_var = 0.0;
   double ci95_lo = 0.0, ci95_hi = 0.0;  ///< u ± 1.96 sd_u mapped back (asymmetric for ln parameters)
   bool at_bound = false;         ///< within 1e-3 of the transform's range of a bound
