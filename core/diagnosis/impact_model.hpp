@@ -131,6 +131,9 @@ class WindowSimulator {
   /// Closed-form free decay of a transient over dt seconds (both modes linear, Eq. A2 with constant ζ).
   ModelState propagate(const ModelState& s, double dt_s, double t_abs_s) const;
   bool has_dry_friction() const { return model_->stick_limit_n() > 0.0; }
+  /// The largest force dry friction holds the mesh against at rest (N; 0 without dry friction): the
+  /// mesh can rest anywhere in |x| <= stick_limit_n / c0.
+  double stick_limit_n() const { return model_->stick_limit_n(); }
   /// Whether the motion between two windows must be integrated (ModelFitter's carried state) rather
   /// than decayed in closed form: the closed form is the linear mesh's, right for the small leftover
   /// tail of a model that is linear near rest. Not so with dry friction (the mesh sticks at an offset

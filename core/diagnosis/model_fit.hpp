@@ -11,7 +11,10 @@
 // impacts. Optimiser: Eigen's Levenberg–Marquardt (unsupported/Eigen/NonLinearOptimization) with a
 // forward-difference Jacobian that exploits the structure (a nuisance moves only its own window and
 // the next one's carried tail), and one more stop for a fit with a global parameter at a bound of
-// its range (run_lm in the .cpp). Uncertainties: s² (JᵀJ)⁻¹ at the optimum, s² = RSS / (n - p).
+// its range (run_lm in the .cpp). Uncertainties: s² (JᵀJ)⁻¹ at the optimum, s² = RSS / (n - p); with
+// dry friction plus the propagated systematic term of each window without a predecessor, whose start
+// the model takes at rest at x = 0 while in a record that begins mid-run the mesh is held anywhere in
+// the friction band ±F_c / c0 (training_statistics in the .cpp).
 //
 // Folds: windows alternate training (even index) / held-out (odd). Training fit: globals and the
 // training nuisances on training rows (held-out nuisances stay at their initial values; they reach the
@@ -49,6 +52,11 @@ struct FitParams {
   std::vector<double> ln_force;    ///< per window: ln(F / F_nominal)
   std::vector<double> shift;       ///< per window: onset - detected onset, samples
   double polarity = 1.0;
+  /// Per window (empty: all zero): a static offset (m) of the mesh deflection at the start of a window
+  /// without a predecessor, where the window model otherwise starts at rest at x = 0. Never fitted:
+  /// set only to propagate the unknown held offset of dry friction into the intervals (the
+  /// uncertainties above).
+  std::vector<double> start_offset_m;
   /// Impact pulse shape (not fitted by LM: a choice, ModelFitter::set_pulse_shape and
   /// fit_pulse_shapes below).
   model::PulseShape pulse_shape = model::PulseShape::kHalfSine;
@@ -58,6 +66,9 @@ struct ParameterEstimate {
   std::string name;
   double value = 0.0;
   double sd = 0.0;               ///< delta-method standard deviation of the value
+  /// Part of sd² (value units²) from the unknown held start offset of dry friction (the uncertainties
+  /// above); 0 without dry friction. sd² - offset_var is the s² (JᵀJ)⁻¹ part alone.
+  double offset_var = 0.0;
   double ci95_lo = 0.0, ci95_hi = 0.0;  ///< u ± 1.96 sd_u mapped back (asymmetric for ln parameters)
   bool at_bound = false;         ///< within 1e-3 of the transform's range of a bound
 };
