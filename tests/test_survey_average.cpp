@@ -109,6 +109,11 @@ TEST(SurveyAverage, ShortDecaysAtTenDecibelsGetAProposal) {
       return s;
     }();
     EXPECT_NEAR(res.proposal->analyzer.f_expected_hz / c.f_hz, 1.0, 0.01);  // the 1 %
+    // The first zeta (it sets window_s) within 25 %: a line through the averaged power's logarithm
+    // read 0.0162, 0.060 and 0.077 (the band's own response and the onsets' scatter steepen it), the
+    // fit of the band-limited decay 0.0118, 0.058, 0.052 (measured); 25 % for the fit's spread at 10 dB.
+    ASSERT_FALSE(res.modes.empty());
+    EXPECT_NEAR(res.modes[0].zeta / c.zeta, 1.0, 0.25) << res.modes[0].zeta;
   }
 }
 #endif
