@@ -269,7 +269,7 @@ int main(int argc, char** argv) {
     std::cout << out.str();
     print(c, o);
     const auto s = ridgewatch::survey::run_survey(survey_cases::make_record(c).x, c.fs_hz);
-    std::printf("trigger: impacts' peaks %.2fx the long-term mean, band noise alone %.2fx its reference\n",
+    std::printf("trigger: impacts' STA and confirmation %.2fx the detector's reference, band noise alone %.2fx its reference\n",
                 s.trigger_headroom, s.noise_trigger_level);
     std::cout << o.analyze_err;
     if (o.proposal) print_unmatched(c, dir);

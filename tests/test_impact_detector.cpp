@@ -334,6 +334,42 @@ TEST(ImpactDetector, FinishAtEveryOffsetNearTheBufferEnd) {
   }
 }
 
+// An impact shortly before the end of the stream: finish() resolves its trigger with the envelope
+// seen so far. While the envelope is still rising (the model peaks 6.6 ms after the onset at the
+// default 730-980 Hz band), half of the truncated maximum is crossed early, and an onset from it would
+// be early (measured without the rule: 2.3 ms early at 1.5 ms before the end, 0.6 ms at 4 ms, 0.16 ms
+// at 5 ms); no onset is emitted then. Every onset reported must lie within 0.1 ms of its impact (as at every block
+// position above), and an impact whose maximum is final before the end (>= the model's peak time +
+// 2 ms before it) must be found.
+TEST(ImpactDetector, NoOnsetFromAMaximumTruncatedByTheEndOfTheStream) {
+  const double fs = 51200.0;
+  const ImpactDetectorConfig cfg;
+  std::size_t found_late = 0, cases = 0;
+  for (double before_end_ms = 1.0; before_end_ms <= 12.0; before_end_ms += 0.5) {
+    ImpactDetector d(cfg, fs, 4096);
+    Options o;
+    o.fs = fs;
+    o.seconds = 0.2;
+    o.onset_s = {0.05, 0.2 - 1e-3 * before_end_ms};
+    const Signal s = make(o);
+    const auto got = detect(d, s.x, 4096);
+    ASSERT_GE(got.size(), 1u) << before_end_ms;
+    ASSERT_LE(got.size(), 2u) << before_end_ms;
+    EXPECT_LE(std::abs(static_cast<double>(got[0]) - static_cast<double>(s.onsets[0])), 0.0001 * fs);
+    if (got.size() == 2) {
+      EXPECT_LE(std::abs(static_cast<double>(got[1]) - static_cast<double>(s.onsets[1])), 0.0001 * fs)
+          << "impact " << before_end_ms << " ms before the end: onset "
+          << (static_cast<double>(got[1]) - static_cast<double>(s.onsets[1])) / fs * 1e3 << " ms off";
+    }
+    if (1e-3 * before_end_ms * fs >= d.peak_samples() + 0.002 * fs) {
+      ++cases;
+      found_late += got.size() == 2;
+    }
+  }
+  EXPECT_GT(cases, 0u);
+  EXPECT_EQ(found_late, cases);
+}
+
 // At 8 kHz (D = 1, 3-sample blocks) the spike stage's scale is not yet ready at the last warm-up band
 // sample; the LTA must still be raised to the white-noise band power once it is. A quiet start (the
 // first 1.5 ms of the record hold 1 % of the noise) leaves the cumulative LTA ~1e-4 of the noise

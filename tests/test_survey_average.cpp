@@ -4,7 +4,11 @@
 // bench/survey_cases.hpp, no code shared with core/model).
 #include <gtest/gtest.h>
 
+#include <unistd.h>
+
 #include <cmath>
+#include <filesystem>
+#include <string>
 #include <vector>
 
 #include "bench/survey_cases.hpp"
@@ -105,7 +109,35 @@ TEST(SurveyAverage, ShortDecaysAtTenDecibelsGetAProposal) {
       return s;
     }();
     EXPECT_NEAR(res.proposal->analyzer.f_expected_hz / c.f_hz, 1.0, 0.01);  // the 1 %
+    // The first zeta (it sets window_s) within 25 %: a line through the averaged power's logarithm
+    // read 0.0162, 0.060 and 0.077 (the band's own response and the onsets' scatter steepen it), the
+    // fit of the band-limited decay 0.0118, 0.058, 0.052 (measured); 25 % for the fit's spread at 10 dB.
+    ASSERT_FALSE(res.modes.empty());
+    EXPECT_NEAR(res.modes[0].zeta / c.zeta, 1.0, 0.25) << res.modes[0].zeta;
   }
+}
+#endif
+
+#ifndef RIDGEWATCH_SANITIZED
+// With their proposal, `analyze` finds the impacts of those short decays (the issue's >= 97 %, no
+// false event). The proposal's trigger_ratio was half the impacts' median STA peak over the LTA (8 for
+// both); the detector triggered every impact of seed 184 and its 2 ms confirmation rejected 18 (mean
+// 3.9-7.8x the reference: the decays' power time constant is 1 ms), and seed 160's missed 4 whose STA
+// reached only 5.6-6.1x a pre-window mean raised by the impact's own rise: 22/40 and 33/40 found. The
+// ratio now comes from what both tests see (impact_trigger_levels() in core/survey/survey.cpp).
+TEST(SurveyAverage, ShortDecaysAtTenDecibelsAreFoundWithTheProposal) {
+  const std::string dir = (std::filesystem::temp_directory_path() / ("test_survey_average-" + std::to_string(::getpid()))).string();
+  std::filesystem::create_directories(dir);
+  const survey_cases::Case cases[] = {survey_cases::sweep_case(8000, 5, 0.01, 0, 84),   // seed 184
+                                      survey_cases::sweep_case(2500, 5, 0.05, 0, 60)};  // seed 160
+  for (const auto& c : cases) {
+    SCOPED_TRACE(survey_cases::describe(c));
+    const auto o = survey_cases::run_case(c, dir);
+    ASSERT_TRUE(o.proposal);
+    EXPECT_GE(static_cast<double>(o.found), 0.97 * static_cast<double>(o.truth)) << o.found << " of " << o.truth;
+    EXPECT_EQ(o.false_events, 0u);
+  }
+  std::filesystem::remove_all(dir);
 }
 #endif
 

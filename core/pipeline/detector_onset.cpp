@@ -127,6 +127,16 @@ void ImpactDetector::refine_and_emit(std::uint64_t trigger, std::uint64_t end) {
   // no onset: the rise began with the segment -- the filters' switch-on on the lines and hum the
   // stream starts in, or a decay already under way. Not emitted; the hold-off above still applies.
   if (onset_d <= static_cast<double>(seg_start_)) return;
+  // Nor is one whose envelope maximum is not final at `end`: decide_band_sample() emits only once the
+  // maximum has not grown for hold_d_, or cap_d_ after the trigger, or when the onset it implies lies
+  // the model's peak time + 1 ms back (so this always holds there), but finish() resolves a trigger
+  // when the stream ends, and a maximum still growing then is truncated: the last crossing of half of
+  // it lies early, and so would the onset (300 Hz, B = 45 Hz, model peak time 17.6 ms: an impact 10 ms
+  // before the end was put 2.7 ms early). Not emitted; its decay is cut by the end of the stream too.
+  const std::uint64_t last = end - 1;
+  if (last - k_peak < hold_d_ && last - trigger < cap_d_ &&
+      static_cast<double>(dec_end_index(static_cast<double>(last))) < onset_d + peak_samples_ + 0.001 * fs_)
+    return;
   if (onset_count_ < kMaxOnsets) {
     onsets_[(onset_head_ + onset_count_) % kMaxOnsets] = onset;
     ++onset_count_;

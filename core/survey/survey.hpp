@@ -138,7 +138,9 @@ struct SurveyResult {
   std::size_t segments_analysed = 0;
   std::vector<ModeCluster> modes;         ///< modes[0] the ringing mode, then further ones
   double decay_per_period = NAN;          ///< envelope left at the next impact, exp(-2 pi f zeta T)
-  /// Median STA peak of the impacts over the detector's capped long-term mean in the proposed band.
+  /// Median over the impacts of the ratio both the detector's STA and its confirmation mean reach over
+  /// its reference (max over t of min(STA, mean of the next 4 STA windows) / max(capped long-term
+  /// mean, pre-window mean)) in the proposed band.
   double trigger_headroom = NAN;
   /// Largest level band noise alone reaches against the detector's reference in the proposed band
   /// (its noise-only stretches; NaN when there are none): the proposed trigger_ratio stays 1.25x over it

@@ -310,9 +310,13 @@ class ReferenceDetector {
         frozen_until = m + std::max(holdoff_, confirm_) + 1;
       }
     }
-    if (confirming) {  // the record ended during the confirmation: judged on what was seen
+    if (confirming) {  // the record ended during the confirmation or settling: judged on what was seen,
+      // and emitted only when the maximum is final by the same rule as above (else it is truncated)
       const std::size_t n = std::min(seen, confirm_);
-      if (n > 0 && confirm_sum / static_cast<double>(n) > c_.trigger_ratio * ref) emit(y.size());
+      const std::size_t m = y.size() - 1;
+      const double end_index = static_cast<double>(std::llround(static_cast<double>(m + 1) * static_cast<double>(D_) - 1.0));
+      const bool final = m - peak_since >= hold_ || m - trigger >= cap_ || end_index >= onset_of(peak_at) + peak_ + 0.001 * fs_;
+      if (n > 0 && confirm_sum / static_cast<double>(n) > c_.trigger_ratio * ref && final) emit(y.size());
     }
   }
 
